@@ -1,0 +1,76 @@
+# shellcheck shell=bash
+# Sourced by scripts/test and scripts/up: brings this checkout to a working ROS 2 Jazzy workspace.
+# 1. .venv with Python 3.11 and every pinned wheel of requirements.txt (skipped when unchanged);
+# 2. the two fixes the ROS wheels need (stale include paths in their CMake exports; the library
+#    path is handled by ros-wheels-bootstrapper's .pth on its own);
+# 3. colcon build of thruster_fdd_msgs and thruster_fdd (skipped when their sources are unchanged);
+# 4. the environment: venv, install/setup.bash, DDS kept on this machine.
+# Every step is a no-op when already done, so a second run takes seconds.
+
+set -euo pipefail
+
+TFDD_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+TFDD_VENV="$TFDD_ROOT/.venv"
+TFDD_PYTHON="${TFDD_PYTHON:-python3.11}"
+
+_tfdd_log() { printf '[bootstrap] %s\n' "$*" >&2; }
+
+_tfdd_hash() { cat "$@" 2>/dev/null | sha256sum | cut -c1-16; }
+
+if [ ! -x "$TFDD_VENV/bin/python" ]; then
+    command -v "$TFDD_PYTHON" >/dev/null || { _tfdd_log "needs $TFDD_PYTHON on PATH"; exit 2; }
+    _tfdd_log "creating $TFDD_VENV"
+    "$TFDD_PYTHON" -m venv "$TFDD_VENV"
+fi
+
+req_stamp="$TFDD_VENV/.tfdd-requirements-$(_tfdd_hash "$TFDD_ROOT/requirements.txt")"
+if [ ! -f "$req_stamp" ]; then
+    _tfdd_log "installing pinned requirements (about 1-2 minutes the first time)"
+    "$TFDD_VENV/bin/python" -m pip install --quiet --disable-pip-version-check "setuptools==79.0.1"
+    "$TFDD_VENV/bin/python" -m pip install --quiet --disable-pip-version-check \
+        -r "$TFDD_ROOT/requirements.txt"
+    # Fix 1: the wheels' CMake exports name the wheel builder's Python and numpy include folders.
+    py_inc="$("$TFDD_VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")"
+    np_inc="$("$TFDD_VENV/bin/python" -c "import numpy; print(numpy.get_include())")"
+    grep -rlF "/opt/python/cp311-cp311" "$TFDD_VENV/share" --include='*.cmake' \
+        | xargs -r sed -i \
+            -e "s#/opt/python/cp311-cp311/include/python3.11#$py_inc#g" \
+            -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$np_inc#g"
+    rm -f "$TFDD_VENV"/.tfdd-requirements-*
+    touch "$req_stamp"
+fi
+
+# shellcheck disable=SC1091
+. "$TFDD_VENV/bin/activate"
+export AMENT_PREFIX_PATH="$VIRTUAL_ENV" CMAKE_PREFIX_PATH="$VIRTUAL_ENV"
+
+build_inputs=(
+    "$TFDD_ROOT"/colcon.meta
+    "$TFDD_ROOT"/thruster_fdd_msgs/package.xml
+    "$TFDD_ROOT"/thruster_fdd_msgs/CMakeLists.txt
+    "$TFDD_ROOT"/thruster_fdd_msgs/msg/*.msg
+    "$TFDD_ROOT"/src/thruster_fdd/package.xml
+    "$TFDD_ROOT"/src/thruster_fdd/setup.py
+    "$TFDD_ROOT"/src/thruster_fdd/config/*
+    "$TFDD_ROOT"/src/thruster_fdd/launch/*
+)
+build_stamp="$TFDD_ROOT/install/.tfdd-build-$(_tfdd_hash "${build_inputs[@]}" "$req_stamp")"
+if [ ! -f "$build_stamp" ]; then
+    _tfdd_log "colcon build (about 20 s)"
+    mkdir -p "$TFDD_ROOT/log"
+    (cd "$TFDD_ROOT" && colcon build --symlink-install --base-paths thruster_fdd_msgs src \
+        --event-handlers console_cohesion- summary+ >"$TFDD_ROOT/log/colcon-last.txt" 2>&1 \
+        || { cat "$TFDD_ROOT/log/colcon-last.txt" >&2; exit 1; })
+    rm -f "$TFDD_ROOT"/install/.tfdd-build-*
+    touch "$build_stamp"
+fi
+
+# colcon's setup scripts read unset variables.
+set +u
+# shellcheck disable=SC1091
+. "$TFDD_ROOT/install/setup.bash"
+set -u
+
+# DDS stays on this machine (loopback and shared memory) unless the user says otherwise.
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"

@@ -1,0 +1,281 @@
+"""``thruster-fdd up`` and ``thruster-fdd emulate``: the project's own launcher.
+
+``up`` starts, per thruster, the ESC driver node under ``/thruster/<id>`` and, for a simulated
+thruster (the default), a microcontroller emulator on a pseudo-terminal and a command player;
+then it prints a live table until Ctrl-C or ``--duration``, and stops every child cleanly
+(SIGINT first: the drivers send neutral to their bridges). ``emulate`` is one emulator alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from thruster_fdd.core.data import CLASS_NAMES
+
+DESCRIPTION = (
+    "Start the node set. Simulated thrusters (the default) each get a microcontroller emulator "
+    "serving the bridge protocol on a pseudo-terminal, an ESC driver node reading it with "
+    "pyserial, and a command player; real thrusters (port: in --config) get the driver only. "
+    "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent)."
+)
+EMULATE_DESCRIPTION = (
+    "Serve one simulated thruster's serial bridge on a pseudo-terminal, in real time, at the "
+    "given link path (a symlink to the tty), until Ctrl-C. The ESC driver node opens the link "
+    "as it opens a real serial adapter."
+)
+
+
+@dataclass(frozen=True)
+class ThrusterPlan:
+    """How one thruster of ``up`` is run.
+
+    Attributes
+    ----------
+    id : str
+        Thruster id; its topics live under ``/thruster/<id>``.
+    port : str or None
+        Serial port of a real bridge; None for a simulated thruster.
+    protocol : str
+        Telemetry format of the bridge: tfdd or kiss.
+    preset : str
+        Simulator preset or configuration YAML (simulated thrusters).
+    condition : str
+        Simulated condition at start.
+    seed : int
+        Simulator seed (noise and unit-to-unit spread).
+    signal : str
+        Command signal of the command player (simulated thrusters).
+    fault_at_s, fault_condition : float or None, str or None
+        Fault injected into the simulated thruster at this time after start.
+    """
+
+    id: str
+    port: str | None = None
+    protocol: str = "tfdd"
+    preset: str = "t100"
+    condition: str = "nominal_15v"
+    seed: int = 0
+    signal: str = "mission"
+    fault_at_s: float | None = None
+    fault_condition: str | None = None
+
+    def __post_init__(self) -> None:
+        if not self.id.isidentifier():
+            raise ValueError(f"thruster id {self.id!r} must be a ROS name token like t0")
+        for name in ("condition", "fault_condition"):
+            value = getattr(self, name)
+            if value is not None and value not in CLASS_NAMES:
+                raise ValueError(f"thruster {self.id}: unknown {name} {value!r}")
+        if (self.fault_at_s is None) != (self.fault_condition is None):
+            raise ValueError(f"thruster {self.id}: a fault needs both a time and a condition")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``thruster-fdd up``."""
+    p.add_argument("--config", type=Path, help="YAML with rate_hz and a thrusters: list")
+    p.add_argument("--thrusters", type=int, default=1, help="number of simulated thrusters")
+    p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
+    p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz (10-100)")
+    p.add_argument("--signal", default="mission", help="command signal of simulated thrusters")
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="ID:CONDITION@S",
+        help="inject a condition into a simulated thruster at S seconds, e.g. t0:broken_blade_1@20",
+    )
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--print-period", type=float, default=2.0, help="table refresh period, s")
+    p.set_defaults(func=run_up)
+
+
+def add_emulate_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``thruster-fdd emulate``."""
+    p.add_argument("--link", type=Path, required=True, help="path of the port symlink to create")
+    p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
+    p.add_argument("--condition", default="nominal_15v", choices=CLASS_NAMES)
+    p.add_argument("--voltage", type=float, help="supply voltage, V (default: the condition's)")
+    p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz")
+    p.add_argument("--protocol", default="tfdd", choices=("tfdd", "kiss"))
+    p.add_argument("--seed", type=int, default=0, help="simulator seed")
+    p.add_argument("--fault-at", type=float, metavar="S", help="time of the fault after start, s")
+    p.add_argument("--fault-condition", choices=CLASS_NAMES, help="condition after --fault-at")
+    p.set_defaults(func=run_emulate)
+
+
+def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan, ...]]:
+    """The telemetry rate and the thrusters to run, from ``up``'s options or its --config."""
+    if args.config is not None:
+        spec: dict[str, Any] = yaml.safe_load(Path(args.config).read_text()) or {}
+        rate = float(spec.get("rate_hz", args.rate))
+        entries = spec.get("thrusters")
+        if not isinstance(entries, list) or not entries:
+            raise ValueError(f"{args.config}: needs a non-empty 'thrusters:' list")
+        known = set(ThrusterPlan.__dataclass_fields__)
+        plans = []
+        for entry in entries:
+            unknown = set(entry) - known
+            if unknown:
+                raise ValueError(f"{args.config}: unknown thruster key(s) {sorted(unknown)}")
+            plans.append(ThrusterPlan(**entry))
+    else:
+        if args.thrusters < 1:
+            raise ValueError("--thrusters must be >= 1")
+        rate = args.rate
+        plans = [
+            ThrusterPlan(id=f"t{i}", preset=args.preset, seed=i, signal=args.signal)
+            for i in range(args.thrusters)
+        ]
+    if not 1.0 <= rate <= 1000.0:
+        raise ValueError(f"telemetry rate must be within 1..1000 Hz, got {rate}")
+    by_id = {p.id: p for p in plans}
+    if len(by_id) != len(plans):
+        raise ValueError("thruster ids must be unique")
+    for text in args.fault:
+        tid, _, rest = text.partition(":")
+        condition, _, at = rest.partition("@")
+        if tid not in by_id or not at:
+            raise ValueError(f"--fault {text!r}: expected ID:CONDITION@SECONDS with a known id")
+        by_id[tid] = ThrusterPlan(
+            **{**by_id[tid].__dict__, "fault_at_s": float(at), "fault_condition": condition}
+        )
+    return rate, tuple(by_id[p.id] for p in plans)
+
+
+def _node_command(module: str, namespace: str, params: dict[str, object]) -> list[str]:
+    cmd = [sys.executable, "-m", f"thruster_fdd.nodes.{module}", "--ros-args"]
+    cmd += ["-r", f"__ns:={namespace}"]
+    for key, value in params.items():
+        cmd += ["-p", f"{key}:={value}"]
+    return cmd
+
+
+def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[str]]:
+    ns = f"/thruster/{plan.id}"
+    port = plan.port or str(run_dir / f"{plan.id}.tty")
+    out: dict[str, list[str]] = {}
+    if plan.port is None:
+        emulate = [sys.executable, "-m", "thruster_fdd.cli", "emulate", "--link", port]
+        emulate += ["--preset", plan.preset, "--condition", plan.condition]
+        emulate += ["--rate", str(rate), "--seed", str(plan.seed), "--protocol", plan.protocol]
+        if plan.fault_at_s is not None and plan.fault_condition is not None:
+            emulate += ["--fault-at", str(plan.fault_at_s)]
+            emulate += ["--fault-condition", plan.fault_condition]
+        out[f"{plan.id}-emulator"] = emulate
+        out[f"{plan.id}-commands"] = _node_command(
+            "command_player", ns, {"signal": plan.signal, "seed": plan.seed}
+        )
+    out[f"{plan.id}-esc_driver"] = _node_command(
+        "esc_driver",
+        ns,
+        {"thruster_id": plan.id, "port": port, "protocol": plan.protocol, "rate_hz": rate},
+    )
+    return out
+
+
+def _stop_children(children: dict[str, subprocess.Popen[bytes]], timeout_s: float = 5.0) -> None:
+    for proc in children.values():
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + timeout_s
+    for proc in children.values():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def run_up(args: argparse.Namespace) -> int:
+    """Start the node set, print the live table, stop everything on Ctrl-C or --duration."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from thruster_fdd.nodes.monitor import Monitor
+
+    rate, plans = plan_from_args(args)
+    run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+
+    children: dict[str, subprocess.Popen[bytes]] = {}
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    monitor = Monitor([p.id for p in plans])
+    executor = SingleThreadedExecutor()
+    executor.add_node(monitor)
+    try:
+        for plan in plans:
+            for name, cmd in _commands(plan, rate, run_dir).items():
+                log = (run_dir / f"{name}.log").open("wb")
+                # Own process group: a Ctrl-C reaches children only through _stop_children,
+                # so they stop in order after the table's last print.
+                children[name] = subprocess.Popen(
+                    cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+                )
+        kinds = ", ".join(
+            f"{p.id}: {'serial ' + p.port if p.port else 'simulated ' + p.preset}" for p in plans
+        )
+        print(f"thruster-fdd up: {len(plans)} thruster(s) at {rate:g} Hz ({kinds})")
+        print(f"ports and logs: {run_dir}   (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', 0)})")
+        print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
+        start = time.monotonic()
+        next_print = start + args.print_period
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+            now = time.monotonic()
+            if args.duration is not None and now - start >= args.duration:
+                break
+            if now >= next_print:
+                next_print += args.print_period
+                print(f"\n[t = {now - start:5.1f} s]\n{monitor.table()}", flush=True)
+            dead = [n for n, proc in children.items() if proc.poll() is not None]
+            if dead:
+                print(f"thruster-fdd up: {', '.join(dead)} exited; see {run_dir}", file=sys.stderr)
+                return 1
+        print(f"\nfinal:\n{monitor.table()}")
+        return 0
+    finally:
+        _stop_children(children)
+        executor.shutdown()
+        monitor.destroy_node()
+        rclpy.try_shutdown()
+
+
+def run_emulate(args: argparse.Namespace) -> int:
+    """Run one bridge emulator until SIGINT/SIGTERM."""
+    from thruster_fdd.core.emulator import BridgeEmulator, EmulatorSettings, SetCondition
+    from thruster_fdd.core.physics import ThrusterSimulator, load_config
+
+    simulator = ThrusterSimulator(
+        load_config(args.preset), args.condition, voltage=args.voltage, seed=args.seed
+    )
+    emulator = BridgeEmulator(
+        simulator, args.link, EmulatorSettings(rate_hz=args.rate, protocol=args.protocol)
+    )
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    if args.fault_at is not None and args.fault_condition is not None:
+        fault = SetCondition(args.fault_condition)
+        timer = threading.Timer(args.fault_at, emulator.inject, (fault,))
+        timer.daemon = True
+        timer.start()
+    device = emulator.open()
+    print(f"emulating {args.condition} ({args.preset}) on {device} via {args.link}", flush=True)
+    emulator.run(stop)
+    return 0

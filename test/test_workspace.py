@@ -1,0 +1,142 @@
+"""The workspace: core stays ROS-free, the CLI answers --help, messages carry their contract."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from thruster_fdd.cli import build_parser
+
+ROOT = Path(__file__).resolve().parents[1]
+CORE = ROOT / "src" / "thruster_fdd" / "thruster_fdd" / "core"
+FORBIDDEN_IN_CORE = (
+    "rclpy",
+    "rosidl_runtime_py",
+    "thruster_fdd_msgs",
+    "std_msgs",
+    "diagnostic_msgs",
+    "builtin_interfaces",
+    "thruster_fdd.nodes",
+)
+SUBCOMMANDS = (
+    "simulate",
+    "train",
+    "evaluate",
+    "diagnose",
+    "discrepancy",
+    "replay",
+    "up",
+    "record",
+    "emulate",
+)
+
+
+def _imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(), filename=str(path))
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+    return names
+
+
+def ros_imports_in(folder: Path) -> dict[str, list[str]]:
+    """Files below ``folder`` that import ROS packages, with the offending modules."""
+    found: dict[str, list[str]] = {}
+    for path in sorted(folder.rglob("*.py")):
+        bad = [
+            name
+            for name in _imports(path)
+            if any(name == f or name.startswith(f + ".") for f in FORBIDDEN_IN_CORE)
+        ]
+        if bad:
+            found[str(path.relative_to(folder))] = sorted(bad)
+    return found
+
+
+def test_core_does_not_import_ros() -> None:
+    assert list(CORE.glob("*.py")), "core folder not found"
+    assert ros_imports_in(CORE) == {}
+
+
+def test_core_check_catches_a_ros_import(tmp_path: Path) -> None:
+    (tmp_path / "bad.py").write_text("import numpy\nfrom rclpy.node import Node\n")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "worse.py").write_text("def f():\n    import thruster_fdd_msgs.msg\n")
+    assert ros_imports_in(tmp_path) == {
+        "bad.py": ["rclpy.node"],
+        "sub/worse.py": ["thruster_fdd_msgs.msg"],
+    }
+
+
+def test_core_imports_without_rclpy_loaded() -> None:
+    code = (
+        "import sys, importlib, pkgutil, thruster_fdd.core as c\n"
+        "for m in pkgutil.iter_modules(c.__path__):\n"
+        "    importlib.import_module('thruster_fdd.core.' + m.name)\n"
+        "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+        "('rclpy', 'thruster_fdd_msgs', 'std_msgs', 'diagnostic_msgs'))\n"
+        "print(bad)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+@pytest.mark.parametrize("subcommand", SUBCOMMANDS)
+def test_cli_help_for_every_subcommand(subcommand: str) -> None:
+    out = subprocess.run(
+        ["thruster-fdd", subcommand, "--help"], capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith(f"usage: thruster-fdd {subcommand}")
+
+
+def test_cli_lists_every_subcommand() -> None:
+    help_text = build_parser().format_help()
+    for subcommand in SUBCOMMANDS:
+        assert subcommand in help_text
+
+
+def test_cli_bad_input_is_one_line_and_exit_2() -> None:
+    out = subprocess.run(
+        ["thruster-fdd", "simulate", "--out", "x.csv", "--condition", "bogus"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert "bogus" in out.stderr
+
+
+@pytest.mark.parametrize(("subcommand", "args"), [("diagnose", ["x.csv"]), ("record", [])])
+def test_cli_pending_subcommands_say_so_and_exit_2(subcommand: str, args: list[str]) -> None:
+    out = subprocess.run(
+        ["thruster-fdd", subcommand, *args], capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 2
+    assert "not available yet" in out.stderr
+    assert "issue" in out.stderr
+
+
+def test_message_contract() -> None:
+    from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual, ThrusterCommand
+
+    from thruster_fdd.core.data import CLASS_NAMES
+
+    telemetry = EscTelemetry.get_fields_and_field_types()
+    for field in ("voltage_v", "current_a", "rpm", "pwm_us", "temperature_c", "command"):
+        assert field in telemetry
+    assert "command" in ThrusterCommand.get_fields_and_field_types()
+    assert {"residual_rpm", "residual_current_a", "model_id"} <= set(
+        Residual.get_fields_and_field_types()
+    )
+    constants = [getattr(Diagnosis, name.upper()) for name in CLASS_NAMES]
+    assert sorted(constants) == list(range(1, len(CLASS_NAMES) + 1))
+    assert Diagnosis.UNKNOWN == 0
