@@ -44,6 +44,7 @@ fi
 . "$TFDD_VENV/bin/activate"
 export AMENT_PREFIX_PATH="$VIRTUAL_ENV" CMAKE_PREFIX_PATH="$VIRTUAL_ENV"
 
+shopt -s nullglob
 build_inputs=(
     "$TFDD_ROOT"/colcon.meta
     "$TFDD_ROOT"/thruster_fdd_msgs/package.xml
@@ -54,6 +55,7 @@ build_inputs=(
     "$TFDD_ROOT"/src/thruster_fdd/config/*
     "$TFDD_ROOT"/src/thruster_fdd/launch/*
 )
+shopt -u nullglob
 build_stamp="$TFDD_ROOT/install/.tfdd-build-$(_tfdd_hash "${build_inputs[@]}" "$req_stamp")"
 if [ ! -f "$build_stamp" ]; then
     _tfdd_log "colcon build (about 20 s)"

@@ -205,26 +205,27 @@ def _pending(name: str) -> Callable[[argparse.Namespace], int]:
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
-    from thruster_fdd.core import simulate_cli
+    from thruster_fdd.core.scenario import run_scenario
+    from thruster_fdd.core.trace_io import write_trace
 
-    trace = simulate_cli.simulate_from_args(
-        source=args.config if args.config is not None else args.preset,
-        condition=args.condition,
-        voltage=args.voltage,
+    if args.out.suffix not in (".csv", ".mcap"):
+        raise UsageError(f"--out must end in .csv or .mcap, got {args.out}")
+    trace = run_scenario(
+        args.config if args.config is not None else args.preset,
+        args.condition,
         signal=args.signal,
         command_csv=args.command_csv,
         duration_s=args.duration,
         rate_hz=args.rate,
+        voltage=args.voltage,
         seed=args.seed,
         thruster_id=args.thruster_id,
         fault_at_s=args.fault_at,
         fault_condition=args.fault_condition,
     )
-    simulate_cli.write_output(trace, args.out)
-    print(
-        f"wrote {len(trace)} samples ({trace.t[-1] - trace.t[0]:.1f} s, {args.condition}) "
-        f"to {args.out}"
-    )
+    write_trace(trace, args.out)
+    span = trace.t[-1] - trace.t[0]
+    print(f"wrote {len(trace)} samples ({span:.1f} s, thruster {trace.thruster_id}) to {args.out}")
     return EXIT_OK
 
 

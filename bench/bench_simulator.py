@@ -1,0 +1,42 @@
+"""Benchmark: simulated seconds per wall-clock second of one thruster (median of repeats).
+
+Usage: ``python bench/bench_simulator.py [--preset t100] [--repeats 5] [--duration 3600]``.
+Target: >= 1000x real time at 10 Hz.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+from thruster_fdd.core.physics import load_config, simulate
+from thruster_fdd.core.signals import make_signal
+
+
+def speed(preset: str, rate_hz: float, duration_s: float, repeats: int) -> float:
+    """Median simulated s per wall s of ``simulate`` on the mission signal."""
+    config = load_config(preset)
+    t, u = make_signal("mission", duration_s, rate_hz, seed=0)
+    ratios = []
+    for seed in range(repeats):
+        start = time.perf_counter()
+        simulate(config, t, u, "broken_blade_1", seed=seed)
+        ratios.append(duration_s / (time.perf_counter() - start))
+    return statistics.median(ratios)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="t100")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--duration", type=float, default=3600.0, help="simulated s per run")
+    args = parser.parse_args()
+    for rate in (10.0, 100.0):
+        ratio = speed(args.preset, rate, args.duration, args.repeats)
+        print(f"{args.preset} at {rate:g} Hz: {ratio:.0f} simulated s per wall s (median of "
+              f"{args.repeats}, {args.duration:g} s runs)")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,106 @@
+"""Reading and writing traces by file type: trace CSV, MCAP, or folders of them."""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from thruster_fdd.core.data import Trace, read_trace_csv, write_trace_csv
+from thruster_fdd.core.mcap_io import read_trace_mcap, write_trace_mcap
+
+SUFFIXES = (".csv", ".mcap")
+
+
+def write_trace(trace: Trace, path: str | Path) -> None:
+    """Write ``trace`` as CSV or MCAP, chosen by the file's suffix.
+
+    Raises
+    ------
+    ValueError
+        If the suffix is neither ``.csv`` nor ``.mcap``.
+    """
+    path = Path(path)
+    if path.suffix == ".csv":
+        write_trace_csv(trace, path)
+    elif path.suffix == ".mcap":
+        write_trace_mcap([trace], path)
+    else:
+        raise ValueError(f"{path}: output must end in .csv or .mcap")
+
+
+def read_traces(sources: Iterable[str | Path]) -> list[Trace]:
+    """Read every trace in the given files and folders (CSV and MCAP, folders recursively).
+
+    Parameters
+    ----------
+    sources : iterable of str or Path
+        Files (``.csv``, ``.mcap``) and folders holding them.
+
+    Returns
+    -------
+    list of Trace
+        One per CSV file, one per thruster in each MCAP file, in sorted path order.
+
+    Raises
+    ------
+    ValueError
+        If a source does not exist, has another suffix, or a folder holds no trace.
+    """
+    traces: list[Trace] = []
+    for source in sources:
+        path = Path(source)
+        if path.is_dir():
+            files = sorted(p for p in path.rglob("*") if p.suffix in SUFFIXES)
+            if not files:
+                raise ValueError(f"{path}: folder holds no .csv or .mcap trace")
+        elif path.is_file():
+            files = [path]
+        else:
+            raise ValueError(f"{path}: no such file or folder")
+        for file in files:
+            if file.suffix == ".csv":
+                traces.append(read_trace_csv(file))
+            elif file.suffix == ".mcap":
+                traces.extend(read_trace_mcap(file))
+            else:
+                raise ValueError(f"{file}: a trace must be a .csv or .mcap file")
+    return traces
+
+
+def read_command_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a command history: CSV columns ``t`` (s, increasing) and ``command`` (-1..1).
+
+    Returns
+    -------
+    (t, command) : tuple of np.ndarray, each shape (n,)
+
+    Raises
+    ------
+    ValueError
+        If a column is missing, a value is not a finite number, times do not increase or a
+        command lies outside -1..1.
+    """
+    path = Path(path)
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        fields = [name.strip() for name in reader.fieldnames or []]
+        if "t" not in fields or "command" not in fields:
+            raise ValueError(f"{path}: needs columns t and command, has {fields}")
+        rows = [{k.strip(): v for k, v in row.items() if k} for row in reader]
+    try:
+        t = np.array([float(r["t"]) for r in rows])
+        command = np.array([float(r["command"]) for r in rows])
+    except ValueError as exc:
+        raise ValueError(f"{path}: t and command must be numbers") from exc
+    if len(t) < 2:
+        raise ValueError(f"{path}: needs at least two rows")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(command))):
+        raise ValueError(f"{path}: t and command must be finite")
+    if not np.all(np.diff(t) > 0):
+        raise ValueError(f"{path}: t must be strictly increasing")
+    if np.any(np.abs(command) > 1.0):
+        raise ValueError(f"{path}: command must lie within -1..1")
+    return t, command

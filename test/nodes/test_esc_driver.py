@@ -1,0 +1,317 @@
+"""Emulator + ESC driver node on a real pty and a real rclpy graph, with injected link faults.
+
+The emulator (a simulated t100 behind the bridge protocol) runs in a thread of the test process;
+the driver runs as its own process from its entry module, as ``thruster-fdd up`` starts it; a
+probe node here publishes commands and collects telemetry and /diagnostics.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import pytest
+
+from thruster_fdd.core import emulator as emu
+from thruster_fdd.core.physics import ThrusterSimulator, load_config
+
+pytestmark = pytest.mark.ros
+
+RATE_HZ = 50.0
+NS = "/thruster/it"
+
+
+def _quiet_t100() -> object:
+    """The t100 preset without sensor outliers: a voltage jump can then only be link damage."""
+    config = load_config("t100")
+    return replace(config, measurement=replace(config.measurement, outlier_prob=0.0))
+
+
+@dataclass
+class Rig:
+    """The emulator, the driver process and the probe's collected messages."""
+
+    emulator: emu.BridgeEmulator
+    driver: subprocess.Popen[bytes]
+    executor: object
+    command_pub: object
+    telemetry: list = field(default_factory=list)
+    diagnostics: list = field(default_factory=list)
+
+    def spin_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)  # type: ignore[attr-defined]
+            if predicate():
+                return True
+        return False
+
+    def spin_for(self, seconds: float) -> None:
+        self.spin_until(lambda: False, seconds)
+
+    def command(self, value: float) -> None:
+        from thruster_fdd_msgs.msg import ThrusterCommand
+
+        self.command_pub.publish(ThrusterCommand(command=value))  # type: ignore[attr-defined]
+
+    def diag_messages(self, since: int = 0) -> list[tuple[int, str]]:
+        return [(s.level[0], s.message) for s in self.diagnostics[since:]]
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
+
+    link_path = tmp_path_factory.mktemp("pty") / "it.tty"
+    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=3)
+    emulator = emu.BridgeEmulator(simulator, link_path, emu.EmulatorSettings(rate_hz=RATE_HZ))
+    emulator.open()
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop,), daemon=True)
+    thread.start()
+
+    driver = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "thruster_fdd.nodes.esc_driver",
+            "--ros-args",
+            "-r",
+            f"__ns:={NS}",
+            "-p",
+            "thruster_id:=it",
+            "-p",
+            f"port:={link_path}",
+            "-p",
+            f"rate_hz:={RATE_HZ}",
+            "-p",
+            "diagnostics_period_s:=0.5",
+            "-p",
+            "command_timeout_s:=0.5",
+            "-p",
+            "max_command_rate_per_s:=0.0",
+        ]
+    )
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("probe", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    r = Rig(
+        emulator,
+        driver,
+        executor,
+        node.create_publisher(ThrusterCommand, f"{NS}/esc/command", reliable),
+    )
+    node.create_subscription(
+        EscTelemetry, f"{NS}/esc/telemetry", r.telemetry.append, qos_profile_sensor_data
+    )
+    node.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == f"{NS}/esc_driver"),
+        reliable,
+    )
+    try:
+        assert r.spin_until(lambda: len(r.telemetry) >= 20, 20.0), "no telemetry from driver"
+        yield r
+    finally:
+        driver.send_signal(2)
+        try:
+            driver.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            driver.kill()
+        stop.set()
+        thread.join(timeout=5)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_telemetry_flows_at_the_bridge_rate(rig: Rig) -> None:
+    n0 = len(rig.telemetry)
+    rig.spin_for(2.0)
+    rate = (len(rig.telemetry) - n0) / 2.0
+    assert 0.8 * RATE_HZ <= rate <= 1.2 * RATE_HZ
+    last = rig.telemetry[-1]
+    assert last.thruster_id == "it"
+    assert 14.0 < last.voltage_v < 16.0
+    seqs = [m.sequence for m in rig.telemetry[n0:]]
+    assert seqs == sorted(seqs)
+
+
+def test_commands_are_forwarded_and_clamped(rig: Rig) -> None:
+    def hold(value: float, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rig.command(value)
+            rig.spin_for(0.05)
+
+    hold(0.5, 1.0)
+    assert rig.emulator.pwm_us == 1700
+    assert rig.telemetry[-1].command == pytest.approx(0.5)
+    hold(3.0, 0.5)
+    assert rig.emulator.pwm_us == 1900
+    hold(float("nan"), 0.3)
+    assert rig.emulator.pwm_us == 1900, "a NaN command must be refused, not applied"
+    hold(0.5, 3.0)
+    assert abs(rig.telemetry[-1].rpm) > 1000, "the simulated thruster should spin"
+
+
+def test_watchdog_falls_back_to_neutral(rig: Rig) -> None:
+    from thruster_fdd_msgs.msg import EscTelemetry
+
+    for _ in range(10):
+        rig.command(0.4)
+        rig.spin_for(0.05)
+    assert rig.emulator.pwm_us == 1660
+    n0 = len(rig.diagnostics)
+    assert rig.spin_until(lambda: rig.emulator.pwm_us == 1500, 2.0)
+    assert rig.spin_until(
+        lambda: any("neutral" in m for _, m in rig.diag_messages(n0)), 2.0
+    ), rig.diag_messages(n0)
+    assert rig.telemetry[-1].status & EscTelemetry.WATCHDOG_NEUTRAL
+
+
+def _inject_and_watch(rig: Rig, fault: emu.Fault, words: str) -> list[tuple[int, str]]:
+    n0 = len(rig.diagnostics)
+    rig.emulator.inject(fault)
+    assert rig.spin_until(lambda: any(words in m for _, m in rig.diag_messages(n0)), 3.0), (
+        f"no /diagnostics message with {words!r} after {fault}: {rig.diag_messages(n0)}"
+    )
+    return rig.diag_messages(n0)
+
+
+@pytest.mark.parametrize(
+    ("fault", "words"),
+    [
+        (emu.Garbage(200), "noise"),
+        (emu.CorruptCrc(5), "CRC errors"),
+        (emu.Truncate(3), "truncated"),
+        (emu.DuplicateFrame(4), "duplicated"),
+        (emu.SkipSequence(7), "7 frames lost"),
+        (emu.OutOfRange(3), "implausible"),
+    ],
+)
+def test_link_faults_are_reported_and_never_published(
+    rig: Rig, fault: emu.Fault, words: str
+) -> None:
+    n0 = len(rig.telemetry)
+    messages = _inject_and_watch(rig, fault, words)
+    assert any(level == 1 for level, m in messages if words in m)
+    rig.spin_for(0.3)
+    published = rig.telemetry[n0:]
+    volts = [m.voltage_v for m in published]
+    assert max(volts) - min(volts) < 0.4, "a corrupted or implausible voltage got through"
+    seqs = [m.sequence for m in published]
+    assert len(seqs) == len(set(seqs)), "a duplicated frame was published"
+    assert len(published) > 0.5 * RATE_HZ * 0.5
+
+
+def test_sequence_gap_flags_the_next_sample(rig: Rig) -> None:
+    from thruster_fdd_msgs.msg import EscTelemetry
+
+    n0 = len(rig.telemetry)
+    rig.emulator.inject(emu.SkipSequence(3))
+    rig.spin_for(0.5)
+    assert any(m.status & EscTelemetry.SEQUENCE_GAP for m in rig.telemetry[n0:])
+
+
+def test_silent_port_goes_stale_then_recovers(rig: Rig) -> None:
+    messages = _inject_and_watch(rig, emu.Silence(2.0), "no telemetry")
+    assert any(level == 3 for level, _ in messages)
+    n0 = len(rig.telemetry)
+    assert rig.spin_until(lambda: len(rig.telemetry) > n0 + 10, 4.0)
+
+
+def test_port_that_disappears_is_reopened_within_2_s(rig: Rig) -> None:
+    n_diag = len(rig.diagnostics)
+    rig.emulator.inject(emu.Disconnect(1.5))
+    assert rig.spin_until(
+        lambda: any(level == 2 and "not open" in m for level, m in rig.diag_messages(n_diag)), 3.0
+    ), rig.diag_messages(n_diag)
+    assert rig.spin_until(lambda: rig.emulator.link.exists(), 5.0)
+    back = time.monotonic()
+    n0 = len(rig.telemetry)
+    assert rig.spin_until(lambda: len(rig.telemetry) > n0, 2.0), "not reconnected within 2 s"
+    print(f"reconnected {time.monotonic() - back:.2f} s after the port returned")
+    assert rig.driver.poll() is None, "the driver must survive a vanishing port"
+
+
+def test_driver_survived_everything(rig: Rig) -> None:
+    assert rig.driver.poll() is None
+    n0 = len(rig.telemetry)
+    rig.spin_for(1.0)
+    assert len(rig.telemetry) - n0 > 0.8 * RATE_HZ
+
+
+def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:
+    """The driver's second protocol: KISS/BLHeli_32 telemetry from the same emulator."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import qos_profile_sensor_data
+    from thruster_fdd_msgs.msg import EscTelemetry
+
+    link_path = tmp_path / "kiss.tty"
+    simulator = ThrusterSimulator(load_config("t100"), "nominal_15v", seed=4)
+    emulator = emu.BridgeEmulator(
+        simulator, link_path, emu.EmulatorSettings(rate_hz=RATE_HZ, protocol="kiss")
+    )
+    emulator.open()
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop,), daemon=True)
+    thread.start()
+    driver = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "thruster_fdd.nodes.esc_driver",
+            "--ros-args",
+            "-r",
+            "__ns:=/thruster/kiss",
+            "-p",
+            f"port:={link_path}",
+            "-p",
+            "protocol:=kiss",
+            "-p",
+            "thruster_id:=kiss",
+        ]
+    )
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("kiss_probe", context=context)
+    received: list[EscTelemetry] = []
+    node.create_subscription(
+        EscTelemetry, "/thruster/kiss/esc/telemetry", received.append, qos_profile_sensor_data
+    )
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        deadline = time.monotonic() + 20
+        while len(received) < 20 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        driver.send_signal(2)
+        driver.wait(timeout=10)
+        stop.set()
+        thread.join(timeout=5)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert len(received) >= 20
+    assert all(m.status & EscTelemetry.NO_COMMAND_ECHO for m in received)
+    assert 14.0 < received[-1].voltage_v < 16.0
