@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
+
 from thruster_fdd.core.effects import Deadband, EscLag
 from thruster_fdd.core.physics import RAD_S_TO_RPM, steady_state
 from thruster_fdd.core.simconfig import Measurement, SimConfig, ThrusterParams, dump_config

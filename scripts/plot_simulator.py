@@ -20,6 +20,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+
 from thruster_fdd.core.physics import (
     Measurement,
     hysteresis_loop_area,

@@ -140,3 +140,13 @@ def test_message_contract() -> None:
     constants = [getattr(Diagnosis, name.upper()) for name in CLASS_NAMES]
     assert sorted(constants) == list(range(1, len(CLASS_NAMES) + 1))
     assert Diagnosis.UNKNOWN == 0
+
+
+@pytest.mark.parametrize("module", ["esc_driver", "command_player"])
+def test_readme_lists_every_node_parameter_with_its_default(module: str) -> None:
+    import importlib
+
+    readme = (ROOT / "README.md").read_text()
+    node = importlib.import_module(f"thruster_fdd.nodes.{module}")
+    for name, default, _ in node.PARAMETERS:
+        assert f"| `{name}` | `{default}` |" in readme, f"{module}.{name} missing from README"

@@ -12,6 +12,7 @@ from types import ModuleType
 
 import numpy as np
 import pytest
+
 from thruster_fdd.core import physics
 from thruster_fdd.core.data import CLASS_NAMES
 from thruster_fdd.core.effects import EFFECTS, CurrentLimit, Deadband, EscLag, make_effect

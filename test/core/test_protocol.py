@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+
 from thruster_fdd.core.protocol import (
     HEADER_LEN,
     KISS_FRAME_LEN,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from thruster_fdd.core.signals import STEP_HOLD_S, make_signal
 
 

@@ -179,9 +179,9 @@ def test_watchdog_falls_back_to_neutral(rig: Rig) -> None:
     assert rig.emulator.pwm_us == 1660
     n0 = len(rig.diagnostics)
     assert rig.spin_until(lambda: rig.emulator.pwm_us == 1500, 2.0)
-    assert rig.spin_until(
-        lambda: any("neutral" in m for _, m in rig.diag_messages(n0)), 2.0
-    ), rig.diag_messages(n0)
+    assert rig.spin_until(lambda: any("neutral" in m for _, m in rig.diag_messages(n0)), 2.0), (
+        rig.diag_messages(n0)
+    )
     assert rig.telemetry[-1].status & EscTelemetry.WATCHDOG_NEUTRAL
 
 

@@ -1,4 +1,4 @@
-"""The ``thruster-fdd`` command: simulate, train, evaluate, diagnose, discrepancy, replay, up, record.
+"""The ``thruster-fdd`` command: simulate, train, evaluate, diagnose, discrepancy, replay, up, ...
 
 Every subcommand has ``--help``; exit code 0 on success, 2 on bad input with a one-line reason.
 Subcommands whose capability is not built yet say which issue brings them and exit 2.
@@ -153,7 +153,9 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
         description="Replay a recording's telemetry through the nodes and check their output.",
     )
     p.add_argument("bag", type=Path, metavar="BAG")
-    p.add_argument("--rate", type=_positive_float, help="rate factor (default: as fast as possible)")
+    p.add_argument(
+        "--rate", type=_positive_float, help="rate factor (default: as fast as possible)"
+    )
     p.set_defaults(func=_pending("replay"))
 
 

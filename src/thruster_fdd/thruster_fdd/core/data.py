@@ -145,7 +145,8 @@ def read_trace_csv(path: str | Path) -> Trace:
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
         if reader.fieldnames is None:
-            raise ValueError(f"{path}: empty file, expected a header with {', '.join(TRACE_COLUMNS)}")
+            expected = ", ".join(TRACE_COLUMNS)
+            raise ValueError(f"{path}: empty file, expected a header with {expected}")
         fields = [name.strip() for name in reader.fieldnames]
         missing = [c for c in TRACE_COLUMNS if c not in fields]
         if missing:

@@ -148,8 +148,10 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
         return LinkHealth(ERROR, f"serial port not open: {window.port_error}", values)
     stale_s = stale_after_periods / window.expected_rate_hz
     if window.since_frame_s is None or window.since_frame_s > stale_s:
-        silent = "no telemetry yet" if window.since_frame_s is None else (
-            f"no telemetry for {window.since_frame_s:.1f} s"
+        silent = (
+            "no telemetry yet"
+            if window.since_frame_s is None
+            else (f"no telemetry for {window.since_frame_s:.1f} s")
         )
         return LinkHealth(STALE, f"{silent} (expected {window.expected_rate_hz:g} Hz)", values)
     problems = [
@@ -172,5 +174,6 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
     if window.watchdog_neutral:
         problems.append("no command within the watchdog timeout: holding neutral")
     if problems:
-        return LinkHealth(WARN, f"{'; '.join(problems)} in the last {window.period_s:.1f} s", values)
+        summary = "; ".join(problems)
+        return LinkHealth(WARN, f"{summary} in the last {window.period_s:.1f} s", values)
     return LinkHealth(OK, f"telemetry {rate:.1f} Hz", values)

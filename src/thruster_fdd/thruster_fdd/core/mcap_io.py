@@ -25,8 +25,23 @@ TELEMETRY_TYPE = "thruster_fdd_msgs/msg/EscTelemetry"
 METADATA_NAME = "thruster_fdd"
 _SEPARATOR = "=" * 80
 _PRIMITIVES = frozenset(
-    "bool byte char float32 float64 int8 uint8 int16 uint16 int32 uint32 int64 uint64 "
-    "string wstring".split()
+    [
+        "bool",
+        "byte",
+        "char",
+        "float32",
+        "float64",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+        "string",
+        "wstring",
+    ]
 )
 _TELEMETRY_TOPIC = re.compile(r"^/thruster/(?P<id>[^/]+)/esc/telemetry$")
 
@@ -160,9 +175,7 @@ def read_trace_mcap(path: str | Path) -> list[Trace]:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         for record in reader.iter_metadata():
             if record.name == METADATA_NAME:
-                segments.update(
-                    {k.removeprefix("labels."): v for k, v in record.metadata.items()}
-                )
+                segments.update({k.removeprefix("labels."): v for k, v in record.metadata.items()})
         for schema, channel, _, msg in reader.iter_decoded_messages():
             match = _TELEMETRY_TOPIC.match(channel.topic)
             if schema is None or schema.name != TELEMETRY_TYPE or match is None:

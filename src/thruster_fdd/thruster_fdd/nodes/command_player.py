@@ -12,9 +12,9 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from thruster_fdd_msgs.msg import ThrusterCommand
 
 from thruster_fdd.core.signals import make_signal
-from thruster_fdd_msgs.msg import ThrusterCommand
 
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 

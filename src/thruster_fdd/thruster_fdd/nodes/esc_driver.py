@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import queue
 import threading
-import time
 from dataclasses import dataclass
 
 import rclpy
@@ -24,9 +23,9 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 from thruster_fdd.core import link, protocol
-from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 

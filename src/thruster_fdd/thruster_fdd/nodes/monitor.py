@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-
 from thruster_fdd_msgs.msg import EscTelemetry
 
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}

@@ -1,0 +1,51 @@
+"""`thruster-fdd up` end to end: emulators, drivers, command players, the live table, shutdown."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def _children_of(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-eo", "pid,ppid"], capture_output=True, text=True).stdout
+    return [int(p) for p, pp in (line.split() for line in out.splitlines()[1:]) if int(pp) == pid]
+
+
+def test_up_runs_two_simulated_thrusters_and_stops_cleanly() -> None:
+    proc = subprocess.Popen(
+        ["thruster-fdd", "up", "--thrusters", "2", "--duration", "8", "--print-period", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    time.sleep(3.0)
+    children = _children_of(proc.pid)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out
+    assert len(children) == 6, "an emulator, a driver and a command player per thruster"
+    final = out.split("final:")[1]
+    rows = {m[1]: float(m[2]) for m in re.finditer(r"^(t\d)\s+([\d.]+)\s", final, re.M)}
+    assert set(rows) == {"t0", "t1"}
+    assert all(40.0 <= rate <= 60.0 for rate in rows.values()), final
+    assert final.count("OK: telemetry") == 2, final
+    time.sleep(0.5)
+    for pid in children:
+        stat = Path(f"/proc/{pid}/stat")
+        assert not stat.exists() or " Z " in stat.read_text(), f"child {pid} still running"
+
+
+def test_up_rejects_a_bad_fault_spec() -> None:
+    out = subprocess.run(
+        ["thruster-fdd", "up", "--fault", "t9:biofouling@3", "--duration", "1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2
+    assert "--fault" in out.stderr
