@@ -32,7 +32,7 @@ if [ ! -f "$req_stamp" ]; then
     # Fix 1: the wheels' CMake exports name the wheel builder's Python and numpy include folders.
     py_inc="$("$TFDD_VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")"
     np_inc="$("$TFDD_VENV/bin/python" -c "import numpy; print(numpy.get_include())")"
-    grep -rlF "/opt/python/cp311-cp311" "$TFDD_VENV/share" --include='*.cmake' \
+    { grep -rlF "/opt/python/cp311-cp311" "$TFDD_VENV/share" --include='*.cmake' || true; } \
         | xargs -r sed -i \
             -e "s#/opt/python/cp311-cp311/include/python3.11#$py_inc#g" \
             -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$np_inc#g"
