@@ -1,0 +1,232 @@
+"""Recorder node: every topic of the graph, as raw CDR, into MCAP files.
+
+Discovers topics periodically (new ones are picked up as they appear), subscribes with
+``raw=True`` and the QoS its publishers offer (reliable only when every publisher is), and
+hands the bytes to ``core.recording.McapRecorder``. An unwritable folder or a full disk is
+reported on ``/diagnostics`` as ERROR while the node (and the rest of the graph) keeps running.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import time
+from importlib.metadata import PackageNotFoundError, version
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from thruster_fdd.core.recording import McapRecorder, RecordingPolicy
+
+RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+_THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
+
+PARAMETERS: tuple[tuple[str, object, str], ...] = (
+    ("output_dir", "recordings", "folder of the MCAP files (created if missing)"),
+    ("prefix", "", "file name prefix (empty: the start time, YYYYmmdd_HHMMSS)"),
+    ("include", ".*", "regex: record topics whose name matches"),
+    ("exclude", "^/(rosout|parameter_events)$", "regex: never record these topics"),
+    ("discovery_period_s", 0.5, "how often new topics are looked for, s"),
+    ("max_file_mb", 256.0, "split: start a new file past this size, MiB"),
+    ("max_file_duration_s", 600.0, "split: start a new file past this span, s"),
+    ("chunk_kb", 512, "MCAP chunk size before compression, KiB"),
+    ("flush_period_s", 1.0, "write the chunk in progress at least this often, s"),
+    ("compression", "zstd", "chunk compression: zstd, lz4 or none"),
+    ("vehicle", "sim-auv", "vehicle name written into the file metadata"),
+    ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
+)
+
+
+def _software_version() -> str:
+    try:
+        return version("thruster_fdd")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _message_class(type_name: str) -> type:
+    pkg, _, name = type_name.partition("/msg/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+class Recorder(Node):
+    """Records all discovered topics (see module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__("recorder")
+        for name, default, description in PARAMETERS:
+            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        p = self.get_parameter
+        self._include = re.compile(p("include").value)
+        self._exclude = re.compile(p("exclude").value)
+        self._policy = RecordingPolicy(
+            max_file_bytes=int(float(p("max_file_mb").value) * 1024 * 1024),
+            max_file_duration_s=float(p("max_file_duration_s").value),
+            chunk_bytes=int(p("chunk_kb").value) * 1024,
+            flush_period_s=float(p("flush_period_s").value),
+            compression=p("compression").value,
+        )
+        self._output_dir = p("output_dir").value
+        self._prefix = p("prefix").value or time.strftime("%Y%m%d_%H%M%S")
+        self._metadata = {
+            "vehicle": p("vehicle").value,
+            "software_version": _software_version(),
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
+        self._recorder: McapRecorder | None = None
+        self._error = ""
+        self._last_attempt = 0.0
+        self._retry_after = 0.0
+        self._subscribed: dict[str, str] = {}
+        self._thrusters: set[str] = set()
+        self._received = 0
+        self._dropped = 0
+        self._window = (0, time.monotonic())
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+        self._open_recorder()
+        self.create_timer(float(p("discovery_period_s").value), self._discover)
+        self.create_timer(float(p("diagnostics_period_s").value), self._publish_diagnostics)
+        self._discover()
+
+    def _open_recorder(self) -> None:
+        self._last_attempt = time.monotonic()
+        try:
+            self._recorder = McapRecorder(
+                self._output_dir, self._policy, self._metadata, prefix=self._prefix
+            )
+            self._error = ""
+        except OSError as exc:
+            self._recorder = None
+            self._error = f"cannot record to {self._output_dir}: {exc.strerror or exc}"
+            self.get_logger().error(self._error)
+
+    def _discover(self) -> None:
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._subscribed or not types:
+                continue
+            if not self._include.search(topic) or self._exclude.search(topic):
+                continue
+            type_name = types[0]
+            try:
+                msg_class = _message_class(type_name)
+            except (ImportError, AttributeError):
+                self.get_logger().warning(f"cannot record {topic}: type {type_name} not found")
+                self._subscribed[topic] = type_name
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            reliable = bool(publishers) and all(
+                info.qos_profile.reliability == ReliabilityPolicy.RELIABLE for info in publishers
+            )
+            qos = QoSProfile(
+                depth=200,
+                reliability=ReliabilityPolicy.RELIABLE
+                if reliable
+                else ReliabilityPolicy.BEST_EFFORT,
+            )
+            self.create_subscription(
+                msg_class,
+                topic,
+                lambda data, topic=topic, type_name=type_name: self._on_message(
+                    topic, type_name, data
+                ),
+                qos,
+                raw=True,
+            )
+            self._subscribed[topic] = type_name
+            match = _THRUSTER_TOPIC.match(topic)
+            if match:
+                self._thrusters.add(match[1])
+                self._metadata["thruster_ids"] = ",".join(sorted(self._thrusters))
+            self.get_logger().info(f"recording {topic} [{type_name}]")
+
+    def _on_message(self, topic: str, type_name: str, data: bytes) -> None:
+        self._received += 1
+        if self._recorder is None:
+            if time.monotonic() - self._last_attempt > 1.0:
+                self._open_recorder()
+            if self._recorder is None:
+                self._dropped += 1
+                return
+        if self._retry_after > time.monotonic():
+            self._dropped += 1
+            return
+        try:
+            self._recorder.write(topic, type_name, data, time.time_ns())
+            self._error = ""
+        except OSError as exc:
+            self._dropped += 1
+            self._write_failed(exc)
+
+    def _write_failed(self, exc: OSError) -> None:
+        # The file is unusable (full disk, vanished folder): drop it, retry a new one later.
+        self._error = f"writing to {self._output_dir} failed: {exc.strerror or exc}"
+        self.get_logger().error(self._error, throttle_duration_sec=5.0)
+        if self._recorder is not None:
+            self._recorder.abandon()
+        self._retry_after = time.monotonic() + 1.0
+
+    def _publish_diagnostics(self) -> None:
+        received, since = self._window
+        now = time.monotonic()
+        rate = (self._received - received) / max(now - since, 1e-9)
+        self._window = (self._received, now)
+        rec = self._recorder
+        if rec is not None:
+            try:
+                rec.flush_if_due()
+            except OSError as exc:
+                self._write_failed(exc)
+        if self._error:
+            level, message = DiagnosticStatus.ERROR, self._error
+        else:
+            level, message = DiagnosticStatus.OK, f"recording {len(self._subscribed)} topics"
+        files = [] if rec is None else rec.files
+        status = DiagnosticStatus(
+            level=level,
+            name="/recorder",
+            message=message,
+            hardware_id=str(self._output_dir),
+            values=[
+                KeyValue(key="messages_per_s", value=f"{rate:.1f}"),
+                KeyValue(key="topics", value=str(len(self._subscribed))),
+                KeyValue(
+                    key="messages_written", value=str(0 if rec is None else rec.messages_written)
+                ),
+                KeyValue(key="dropped", value=str(self._dropped)),
+                KeyValue(key="files", value=",".join(str(f) for f in files)),
+            ],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
+
+    def shutdown(self) -> None:
+        """Finish the current file so it ends with a complete summary."""
+        if self._recorder is not None:
+            try:
+                self._recorder.close({"messages": str(self._recorder.messages_written)})
+            except OSError as exc:
+                self.get_logger().error(f"could not finish {self._recorder.files[-1]}: {exc}")
+            self._recorder = None
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the recorder until Ctrl-C; the last file is finished cleanly."""
+    rclpy.init(args=args)
+    node = Recorder()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
