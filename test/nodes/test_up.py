@@ -17,9 +17,12 @@ def _children_of(pid: int) -> list[int]:
     return [int(p) for p, pp in (line.split() for line in out.splitlines()[1:]) if int(pp) == pid]
 
 
-def test_up_runs_two_simulated_thrusters_and_stops_cleanly() -> None:
+def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> None:
+    from thruster_fdd.core.mcap_io import read_trace_mcap
+
+    cmd = ["thruster-fdd", "up", "--thrusters", "2", "--duration", "8", "--print-period", "2"]
     proc = subprocess.Popen(
-        ["thruster-fdd", "up", "--thrusters", "2", "--duration", "8", "--print-period", "2"],
+        [*cmd, "--record-dir", str(tmp_path)],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -28,7 +31,7 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly() -> None:
     children = _children_of(proc.pid)
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 0, out
-    assert len(children) == 6, "an emulator, a driver and a command player per thruster"
+    assert len(children) == 7, "an emulator, a driver and a command player per thruster; a recorder"
     final = out.split("final:")[1]
     rows = {m[1]: float(m[2]) for m in re.finditer(r"^(t\d)\s+([\d.]+)\s", final, re.M)}
     assert set(rows) == {"t0", "t1"}
@@ -38,6 +41,11 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly() -> None:
     for pid in children:
         stat = Path(f"/proc/{pid}/stat")
         assert not stat.exists() or " Z " in stat.read_text(), f"child {pid} still running"
+    files = sorted(tmp_path.glob("up_*.mcap"))
+    assert files, out
+    traces = {t.thruster_id: t for t in read_trace_mcap(files[0])}
+    assert set(traces) == {"t0", "t1"}
+    assert len(traces["t0"]) > 5 * 40, "about 6 s of 50 Hz telemetry recorded"
 
 
 def test_up_rejects_a_bad_fault_spec() -> None:

@@ -29,6 +29,7 @@ DESCRIPTION = (
     "Start the node set. Simulated thrusters (the default) each get a microcontroller emulator "
     "serving the bridge protocol on a pseudo-terminal, an ESC driver node reading it with "
     "pyserial, and a command player; real thrusters (port: in --config) get the driver only. "
+    "A recorder writes every topic to MCAP. "
     "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent)."
 )
 EMULATE_DESCRIPTION = (
@@ -99,6 +100,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--print-period", type=float, default=2.0, help="table refresh period, s")
+    p.add_argument(
+        "--record-dir",
+        type=Path,
+        default=Path("recordings"),
+        help="the recorder writes every topic to MCAP files here",
+    )
+    p.add_argument("--no-record", action="store_true", help="do not start the recorder")
     p.set_defaults(func=run_up)
 
 
@@ -227,11 +235,22 @@ def run_up(args: argparse.Namespace) -> int:
                 children[name] = subprocess.Popen(
                     cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
                 )
+        if not args.no_record:
+            prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
+            recorder = _node_command(
+                "recorder", "/", {"output_dir": args.record_dir.resolve(), "prefix": prefix}
+            )
+            log = (run_dir / "recorder.log").open("wb")
+            children["recorder"] = subprocess.Popen(
+                recorder, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+            )
         kinds = ", ".join(
             f"{p.id}: {'serial ' + p.port if p.port else 'simulated ' + p.preset}" for p in plans
         )
         print(f"thruster-fdd up: {len(plans)} thruster(s) at {rate:g} Hz ({kinds})")
         print(f"ports and logs: {run_dir}   (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', 0)})")
+        if not args.no_record:
+            print(f"recording every topic to {args.record_dir.resolve()}/{prefix}_*.mcap")
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period
