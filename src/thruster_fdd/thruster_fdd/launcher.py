@@ -84,6 +84,17 @@ class ThrusterPlan:
             raise ValueError(f"thruster {self.id}: a fault needs both a time and a condition")
 
 
+@dataclass(frozen=True)
+class ModelStage:
+    """A node of the per-thruster pipeline that runs an exported model from ``folder``."""
+
+    node: str
+    folder: str
+
+
+MODEL_STAGES = (ModelStage("nominal_model", "nominal"), ModelStage("classifier", "classifier"))
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd up``."""
     p.add_argument("--config", type=Path, help="YAML with rate_hz and a thrusters: list")
@@ -107,6 +118,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the recorder writes every topic to MCAP files here",
     )
     p.add_argument("--no-record", action="store_true", help="do not start the recorder")
+    p.add_argument(
+        "--models",
+        type=Path,
+        help="folder with nominal/ and classifier/ exported models (default: the workspace's "
+        "models/); a node whose model is absent is not started",
+    )
     p.set_defaults(func=run_up)
 
 
@@ -171,7 +188,7 @@ def _node_command(module: str, namespace: str, params: dict[str, object]) -> lis
     return cmd
 
 
-def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[str]]:
+def _commands(plan: ThrusterPlan, rate: float, run_dir: Path, models: Path) -> dict[str, list[str]]:
     ns = f"/thruster/{plan.id}"
     port = plan.port or str(run_dir / f"{plan.id}.tty")
     out: dict[str, list[str]] = {}
@@ -191,6 +208,10 @@ def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[
         ns,
         {"thruster_id": plan.id, "port": port, "protocol": plan.protocol, "rate_hz": rate},
     )
+    for stage in MODEL_STAGES:
+        if (models / stage.folder / "model_card.json").is_file():
+            params = {"thruster_id": plan.id, "model_dir": models / stage.folder}
+            out[f"{plan.id}-{stage.node}"] = _node_command(stage.node, ns, params)
     return out
 
 
@@ -213,9 +234,11 @@ def run_up(args: argparse.Namespace) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
+    from thruster_fdd.core.paths import default_models_dir
     from thruster_fdd.nodes.monitor import Monitor
 
     rate, plans = plan_from_args(args)
+    models = (args.models or default_models_dir()).resolve()
     run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -228,7 +251,7 @@ def run_up(args: argparse.Namespace) -> int:
     executor.add_node(monitor)
     try:
         for plan in plans:
-            for name, cmd in _commands(plan, rate, run_dir).items():
+            for name, cmd in _commands(plan, rate, run_dir, models).items():
                 log = (run_dir / f"{name}.log").open("wb")
                 # Own process group: a Ctrl-C reaches children only through _stop_children,
                 # so they stop in order after the table's last print.
@@ -249,6 +272,12 @@ def run_up(args: argparse.Namespace) -> int:
         )
         print(f"thruster-fdd up: {len(plans)} thruster(s) at {rate:g} Hz ({kinds})")
         print(f"ports and logs: {run_dir}   (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', 0)})")
+        stages = [
+            f"{st.node} ({models / st.folder})"
+            for st in MODEL_STAGES
+            if (models / st.folder / "model_card.json").is_file()
+        ]
+        print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
         if not args.no_record:
             print(f"recording every topic to {args.record_dir.resolve()}/{prefix}_*.mcap")
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")

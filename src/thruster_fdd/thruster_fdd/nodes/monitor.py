@@ -1,51 +1,65 @@
-"""Monitor node: a live table of every thruster's telemetry and link health.
+"""Monitor node: a live table of every thruster's telemetry, residuals, diagnosis and health.
 
-Subscribes to ``/thruster/<id>/esc/telemetry`` of the given thrusters and to ``/diagnostics``,
-and renders one row per thruster: telemetry rate, command, pwm, voltage, current, rpm,
-temperature and the driver's health message. ``thruster-fdd up`` prints it every few seconds.
+Subscribes, per thruster, to ``esc/telemetry``, ``fdd/residual`` and ``fdd/diagnosis`` under
+``/thruster/<id>``, and to ``/diagnostics``; renders one row per thruster: telemetry rate,
+command, pwm, voltage, current, rpm, temperature, RMS residuals over the last 2 s, the diagnosis
+and the driver's health message. ``thruster-fdd up`` prints it every few seconds.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from thruster_fdd_msgs.msg import EscTelemetry
+from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+WINDOW_S = 2.0
 
 
 @dataclass
 class _Row:
     """The latest state of one thruster (mutable: updated by callbacks)."""
 
-    stamps: deque[float]
+    stamps: deque[float] = field(default_factory=lambda: deque(maxlen=400))
+    residuals: deque[tuple[float, float, float]] = field(default_factory=lambda: deque(maxlen=400))
     last: EscTelemetry | None = None
+    diagnosis: Diagnosis | None = None
     health: str = "-"
 
 
 class Monitor(Node):
-    """Collects telemetry and diagnostics of ``thruster_ids`` (see module docstring)."""
+    """Collects what ``thruster_ids`` publish (see module docstring)."""
 
     def __init__(self, thruster_ids: list[str]) -> None:
         super().__init__("monitor")
-        self.rows = {tid: _Row(stamps=deque(maxlen=400)) for tid in thruster_ids}
+        self.rows = {tid: _Row() for tid in thruster_ids}
+        reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
         for tid in thruster_ids:
+            ns = f"/thruster/{tid}"
             self.create_subscription(
                 EscTelemetry,
-                f"/thruster/{tid}/esc/telemetry",
+                f"{ns}/esc/telemetry",
                 lambda msg, tid=tid: self._on_telemetry(tid, msg),
                 qos_profile_sensor_data,
             )
-        self.create_subscription(
-            DiagnosticArray,
-            "/diagnostics",
-            self._on_diagnostics,
-            QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE),
-        )
+            self.create_subscription(
+                Residual,
+                f"{ns}/fdd/residual",
+                lambda msg, tid=tid: self._on_residual(tid, msg),
+                qos_profile_sensor_data,
+            )
+            self.create_subscription(
+                Diagnosis,
+                f"{ns}/fdd/diagnosis",
+                lambda msg, tid=tid: setattr(self.rows[tid], "diagnosis", msg),
+                reliable,
+            )
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable)
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -55,32 +69,52 @@ class Monitor(Node):
         row.last = msg
         row.stamps.append(self._now_s())
 
+    def _on_residual(self, tid: str, msg: Residual) -> None:
+        if msg.flags == Residual.OK:
+            self.rows[tid].residuals.append(
+                (self._now_s(), msg.residual_rpm, msg.residual_current_a)
+            )
+
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             for tid, row in self.rows.items():
                 if status.name == f"/thruster/{tid}/esc_driver":
-                    level = LEVELS.get(status.level[0], "?")
-                    row.health = f"{level}: {status.message}"
+                    row.health = f"{LEVELS.get(status.level[0], '?')}: {status.message}"
 
-    def rate_hz(self, tid: str, window_s: float = 2.0) -> float:
-        """Telemetry messages per second received for ``tid`` over the last ``window_s``."""
+    def rate_hz(self, tid: str) -> float:
+        """Telemetry messages per second received for ``tid`` over the last 2 s."""
         now = self._now_s()
-        return sum(1 for s in self.rows[tid].stamps if now - s <= window_s) / window_s
+        return sum(1 for s in self.rows[tid].stamps if now - s <= WINDOW_S) / WINDOW_S
+
+    def residual_rms(self, tid: str) -> tuple[float, float] | None:
+        """RMS of the rpm and current residuals (rpm, A) over the last 2 s; None if none."""
+        now = self._now_s()
+        recent = [(r, i) for s, r, i in self.rows[tid].residuals if now - s <= WINDOW_S]
+        if not recent:
+            return None
+        return (
+            math.sqrt(sum(r * r for r, _ in recent) / len(recent)),
+            math.sqrt(sum(i * i for _, i in recent) / len(recent)),
+        )
 
     def table(self) -> str:
         """The live table, one line per thruster."""
         lines = [
             f"{'id':<4} {'rate Hz':>7} {'cmd':>6} {'pwm us':>6} {'V':>6} {'A':>6} "
-            f"{'rpm':>7} {'temp C':>6}  link"
+            f"{'rpm':>7} {'temp C':>6} {'res rpm':>7} {'res A':>6}  {'diagnosis':<24} link"
         ]
         for tid, row in self.rows.items():
             m = row.last
             if m is None:
                 lines.append(f"{tid:<4} {'-':>7}  (no telemetry yet)  {row.health}")
                 continue
+            rms = self.residual_rms(tid)
+            res = f"{rms[0]:7.0f} {rms[1]:6.2f}" if rms else f"{'-':>7} {'-':>6}"
+            d = row.diagnosis
+            diag = f"{d.label} ({d.confidence:.2f})" if d is not None else "-"
             lines.append(
                 f"{tid:<4} {self.rate_hz(tid):7.1f} {m.command:6.2f} {m.pwm_us:6d} "
-                f"{m.voltage_v:6.2f} {m.current_a:6.2f} {m.rpm:7.0f} {m.temperature_c:6.1f}  "
-                f"{row.health}"
+                f"{m.voltage_v:6.2f} {m.current_a:6.2f} {m.rpm:7.0f} {m.temperature_c:6.1f} "
+                f"{res}  {diag:<24} {row.health}"
             )
         return "\n".join(lines)
