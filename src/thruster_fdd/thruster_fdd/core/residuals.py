@@ -174,7 +174,7 @@ class ResidualStream:
                 return None
             if dt < 0.0 or dt > self._max_gap_s:
                 reason = f"time gap of {dt:.3f} s"
-        going_back = None not in (self._last_seq, sequence) and sequence <= self._last_seq
+        going_back = None not in (self._last_seq, sequence) and sequence < self._last_seq
         if not reason and going_back:
             reason = f"sequence went back from {self._last_seq} to {sequence}"
         if reason:

@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Regenerate the committed default nominal model (models/nominal/) from simulated healthy t100
+# traces: the three nominal supply voltages x (multilevel + mission) signals, 200 s each at 10 Hz
+# (12 000 samples), trained with seed 0. Usage: scripts/make_nominal_model.sh [OUT_DIR]
+# Same code and seed give the same weights (model_id); only the card's "created" time changes.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+out="${1:-$root/models/nominal}"
+data="$(mktemp -d)"
+trap 'rm -rf "$data"' EXIT
+seed=1
+for condition in nominal_15v nominal_13v nominal_11v8; do
+    for signal in multilevel mission; do
+        thruster-fdd simulate --preset t100 --condition "$condition" --signal "$signal" \
+            --duration 200 --rate 10 --seed "$seed" --out "$data/${condition}_${signal}.csv"
+        seed=$((seed + 1))
+    done
+done
+thruster-fdd train nominal --data "$data" --out "$out" --seed 0

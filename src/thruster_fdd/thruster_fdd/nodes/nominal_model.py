@@ -1,0 +1,142 @@
+"""Nominal-model node: telemetry -> residuals of the exported healthy-thruster NARX model.
+
+Subscribes to ``esc/telemetry``, feeds the model at its sample time (``core.residuals``),
+publishes ``Residual`` on ``fdd/residual`` and a status on ``/diagnostics``. A missing, corrupt
+or mismatched model stops the node at start with a message naming the file and what is wrong.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from thruster_fdd_msgs.msg import EscTelemetry, Residual
+
+from thruster_fdd.core.nominal import NominalModel
+from thruster_fdd.core.paths import default_models_dir
+from thruster_fdd.core.residuals import ResidualStream
+
+RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+PARAMETERS: tuple[tuple[str, object, str], ...] = (
+    ("thruster_id", "t0", "thruster id written into every message"),
+    ("model_dir", "", "exported nominal model folder (empty: <models>/nominal)"),
+    ("max_gap_periods", 3.0, "a telemetry gap longer than this many model periods resets state"),
+    ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
+)
+
+
+class NominalModelNode(Node):
+    """Publishes the residuals of one thruster (see module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__("nominal_model")
+        for name, default, description in PARAMETERS:
+            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        p = self.get_parameter
+        self._id = p("thruster_id").value
+        model_dir = p("model_dir").value or str(default_models_dir() / "nominal")
+        self._model = NominalModel.load(model_dir)
+        self._stream = ResidualStream(self._model, float(p("max_gap_periods").value))
+        self._pub = self.create_publisher(Residual, "fdd/residual", qos_profile_sensor_data)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+        self.create_subscription(
+            EscTelemetry, "esc/telemetry", self._on_telemetry, qos_profile_sensor_data
+        )
+        self._diag_period_s = float(p("diagnostics_period_s").value)
+        self.create_timer(self._diag_period_s, self._publish_diagnostics)
+        self._published = 0
+        self._window_published = 0
+        self._last_reason = ""
+        self._step_s: list[float] = []
+        self.get_logger().info(
+            f"thruster {self._id}: model {self._model.model_id} from {model_dir} "
+            f"({self._model.card.mode}, {1.0 / self._model.sample_time_s:g} Hz)"
+        )
+
+    def _on_telemetry(self, msg: EscTelemetry) -> None:
+        t_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        start = time.perf_counter()
+        out = self._stream.push(
+            t_s, msg.command, msg.voltage_v, msg.rpm, msg.current_a, msg.sequence
+        )
+        if out is None:
+            return
+        self._step_s.append(time.perf_counter() - start)
+        if out.reason:
+            self._last_reason = out.reason
+        res = Residual(
+            thruster_id=self._id,
+            measured_rpm=out.measured_rpm,
+            predicted_rpm=out.predicted_rpm,
+            residual_rpm=out.residual_rpm,
+            measured_current_a=out.measured_current_a,
+            predicted_current_a=out.predicted_current_a,
+            residual_current_a=out.residual_current_a,
+            flags=out.flags,
+            model_id=self._model.model_id,
+        )
+        res.header = msg.header
+        self._pub.publish(res)
+        self._published += 1
+
+    def _publish_diagnostics(self) -> None:
+        count = self._published - self._window_published
+        self._window_published = self._published
+        rate = count / self._diag_period_s
+        steps = sorted(self._step_s)
+        self._step_s.clear()
+        median_us = 1e6 * steps[len(steps) // 2] if steps else 0.0
+        p99_us = 1e6 * steps[min(len(steps) - 1, int(0.99 * len(steps)))] if steps else 0.0
+        if count == 0:
+            level, message = DiagnosticStatus.STALE, "no telemetry to model"
+        elif self._last_reason:
+            level, message = DiagnosticStatus.WARN, f"state reset: {self._last_reason}"
+        else:
+            level, message = DiagnosticStatus.OK, f"residuals {rate:.1f} Hz"
+        self._last_reason = ""
+        status = DiagnosticStatus(
+            level=level,
+            name=f"{self.get_namespace().rstrip('/')}/nominal_model",
+            message=message,
+            hardware_id=self._model.model_id,
+            values=[
+                KeyValue(key="residual_rate_hz", value=f"{rate:.1f}"),
+                KeyValue(key="model_id", value=self._model.model_id),
+                KeyValue(key="resets", value=str(self._stream.resets)),
+                KeyValue(key="invalid_samples", value=str(self._stream.invalid)),
+                KeyValue(key="median_step_us", value=f"{median_us:.0f}"),
+                KeyValue(key="p99_step_us", value=f"{p99_us:.0f}"),
+            ],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until Ctrl-C; exit 1 with the reason when the model cannot be used."""
+    rclpy.init(args=args)
+    try:
+        node = NominalModelNode()
+    except ValueError as exc:
+        print(f"nominal_model: cannot start: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(1)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

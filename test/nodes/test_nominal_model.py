@@ -1,0 +1,185 @@
+"""nominal_model node on a real graph: residuals of simulated telemetry, bad input, bad models."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from thruster_fdd.core.paths import default_models_dir
+from thruster_fdd.core.scenario import run_scenario
+
+pytestmark = pytest.mark.ros
+
+NOMINAL = default_models_dir() / "nominal"
+NS = "/thruster/nm"
+
+
+@dataclass
+class Rig:
+    node: object
+    executor: object
+    pub: object
+    residuals: list
+    proc: subprocess.Popen[bytes]
+
+    def spin(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.01)  # type: ignore[attr-defined]
+
+    def send(self, t: float, command: float, voltage: float, rpm: float, current: float) -> None:
+        from thruster_fdd_msgs.msg import EscTelemetry
+
+        msg = EscTelemetry(
+            thruster_id="nm", command=command, voltage_v=voltage, rpm=rpm, current_a=current
+        )
+        msg.header.stamp.sec, frac = divmod(t, 1.0)
+        msg.header.stamp.sec = int(msg.header.stamp.sec)
+        msg.header.stamp.nanosec = round(frac * 1e9)
+        self.pub.publish(msg)  # type: ignore[attr-defined]
+
+
+@pytest.fixture(scope="module")
+def rig() -> Iterator[Rig]:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from thruster_fdd_msgs.msg import EscTelemetry, Residual
+
+    assert (NOMINAL / "model_card.json").is_file(), "the committed nominal model is missing"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "thruster_fdd.nodes.nominal_model",
+            "--ros-args",
+            "-r",
+            f"__ns:={NS}",
+            "-p",
+            "thruster_id:=nm",
+            "-p",
+            f"model_dir:={NOMINAL}",
+        ]
+    )
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("nominal_probe", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    residuals: list = []
+    node.create_subscription(
+        Residual, f"{NS}/fdd/residual", residuals.append, qos_profile_sensor_data
+    )
+    # Reliable from this side: the node's best-effort subscription still matches, and the
+    # test does not lose samples to a busy machine.
+    pub = node.create_publisher(
+        EscTelemetry,
+        f"{NS}/esc/telemetry",
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
+    )
+    r = Rig(node, executor, pub, residuals, proc)
+    deadline = time.monotonic() + 20
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        r.spin(0.1)
+    assert pub.get_subscription_count() > 0, "the node never subscribed"
+    try:
+        yield r
+    finally:
+        proc.send_signal(2)
+        proc.wait(timeout=10)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_residuals_of_a_healthy_thruster_are_small(rig: Rig) -> None:
+    trace = run_scenario("t100", "nominal_15v", signal="multilevel", duration_s=40, seed=11)
+    n0 = len(rig.residuals)
+    for i in range(len(trace)):
+        rig.send(1000.0 + trace.t[i], trace.command[i], trace.voltage[i], trace.rpm[i],
+                 trace.current[i])  # fmt: skip
+        rig.spin(0.004)
+    rig.spin(1.0)
+    got = rig.residuals[n0:]
+    assert len(got) >= 0.95 * len(trace)
+    valid = [m for m in got if m.flags == 0]
+    assert len(valid) >= 0.9 * len(trace)
+    rms_rpm = math.sqrt(sum(m.residual_rpm**2 for m in valid) / len(valid))
+    assert rms_rpm < 250.0, f"healthy residual RMS {rms_rpm:.0f} rpm"
+    assert all(m.model_id.startswith("nominal-") for m in got)
+    assert got[0].flags & 1, "the first samples warm the lookback up"
+
+
+def test_nan_and_gaps_are_flagged_and_never_published_as_nan(rig: Rig) -> None:
+    n0 = len(rig.residuals)
+    t = 2000.0
+    for _ in range(30):
+        rig.send(t, 0.3, 15.0, 1500.0, 1.5)
+        t += 0.1
+        rig.spin(0.005)
+    rig.send(t, 0.3, 15.0, float("nan"), 1.5)
+    t += 0.1
+    for _ in range(5):
+        rig.send(t, 0.3, 15.0, 1500.0, 1.5)
+        t += 0.1
+        rig.spin(0.005)
+    t += 5.0
+    rig.send(t, 0.3, 15.0, 1500.0, 1.5)
+    rig.spin(1.0)
+    got = rig.residuals[n0:]
+    flags = [m.flags for m in got]
+    assert 4 in flags, "INPUT_INVALID for the NaN sample"
+    assert any(f & 2 for f in flags), "STATE_RESET after the 5 s gap"
+    for m in got:
+        for value in (m.measured_rpm, m.predicted_rpm, m.residual_rpm, m.residual_current_a):
+            assert math.isfinite(value)
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [
+        ("missing", "model_card.json"),
+        ("corrupt", "model.pt2"),
+        ("kind", "kind"),
+    ],
+)
+def test_a_bad_model_stops_the_node_with_the_reason(
+    tmp_path: Path, damage: str, words: str
+) -> None:
+    bad = tmp_path / "nominal"
+    shutil.copytree(NOMINAL, bad)
+    if damage == "missing":
+        (bad / "model_card.json").unlink()
+    elif damage == "corrupt":
+        (bad / "model.pt2").write_bytes(b"not a torch export")
+    else:
+        card = json.loads((bad / "model_card.json").read_text())
+        card["kind"] = "classifier"
+        (bad / "model_card.json").write_text(json.dumps(card))
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "thruster_fdd.nodes.nominal_model",
+            "--ros-args",
+            "-p",
+            f"model_dir:={bad}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 1
+    assert "cannot start" in out.stderr
+    assert words in out.stderr
