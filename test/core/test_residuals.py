@@ -104,3 +104,13 @@ def test_invalid_input_is_flagged_never_nan(field: str, value: float, words: str
 def test_rejects_a_gap_threshold_below_one_period() -> None:
     with pytest.raises(ValueError, match="max_gap_periods"):
         r.ResidualStream(Persistence(), max_gap_periods=0.5)
+
+
+def test_decimate_matches_what_the_stream_feeds() -> None:
+    import numpy as np
+
+    t = np.cumsum(np.full(200, 0.02) + np.random.default_rng(0).uniform(-0.003, 0.003, 200))
+    stream = r.ResidualStream(Persistence())
+    fed = np.array([_push(stream, float(ti)) is not None for ti in t])
+    np.testing.assert_array_equal(r.decimate(t, 0.1), fed)
+    assert 35 <= fed.sum() <= 45

@@ -17,14 +17,7 @@ EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 
 # Subcommands whose capability a later issue brings; running them says so and exits 2.
-PENDING: dict[str, str] = {
-    "train": "issue 4 (nominal model) and issue 5 (classifier)",
-    "evaluate": "issue 4 (Table 2) and issue 5 (Table 3)",
-    "diagnose": "issue 5 (diagnosis)",
-    "discrepancy": "issue 7 (discrepancy workflow)",
-    "replay": "issue 6 (MCAP replay)",
-    "record": "issue 6 (MCAP recorder)",
-}
+PENDING: dict[str, str] = {}
 
 
 class UsageError(Exception):
@@ -96,77 +89,371 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
         description="Train and export a model from trace CSV / MCAP files or folders of them.",
     )
     what = p.add_subparsers(dest="what", metavar="{nominal,classifier}", required=True)
-    n = what.add_parser("nominal", help="train and export the nominal NARX model")
+    n = what.add_parser(
+        "nominal",
+        help="train and export the nominal NARX model",
+        description=(
+            "Train the nominal NARX (inputs command, voltage; outputs rpm, current) on healthy "
+            "traces and export it (model.pt2 + model_card.json). The last --validation-fraction "
+            "of every trace gives the card's validation metrics, then the model is retrained on "
+            "everything. Same data and --seed give the same weights (docs/nominal_model.md)."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     n.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
     n.add_argument("--out", type=Path, default=Path("models/nominal"), metavar="DIR")
-    n.add_argument("--seed", type=int, default=0)
-    c = what.add_parser("classifier", help="train and export the fault classifier")
+    n.add_argument("--seed", type=int, default=0, help="seed of initialisation and shuffling")
+    n.add_argument(
+        "--mode",
+        choices=["parallel", "series-parallel"],
+        default="parallel",
+        help="NARX configuration the node uses for residuals (and trains for)",
+    )
+    n.add_argument("--validation-fraction", type=float, default=0.2, metavar="F")
+    n.set_defaults(func=_run_train_nominal)
+    c = what.add_parser(
+        "classifier",
+        help="train and export the fault classifier",
+        description=(
+            "Train the window classifier (MLP on residual and signal features, calibrated, with "
+            "an UNKNOWN answer) on labelled traces: the 'condition' column of a trace CSV or the "
+            "labels of a recording; a trace whose label changes mid-run is used on both sides "
+            "of the change. Residuals come from the exported nominal model --nominal, whose id "
+            "the card records. Exports model.pt2 + model_card.json (docs/diagnosis.md)."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     c.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
     c.add_argument("--nominal", type=Path, default=Path("models/nominal"), metavar="DIR")
     c.add_argument("--out", type=Path, default=Path("models/classifier"), metavar="DIR")
-    c.add_argument("--seed", type=int, default=0)
-    p.set_defaults(func=_pending("train"))
+    c.add_argument("--seed", type=int, default=0, help="seed of initialisation")
+    c.add_argument("--window", type=_positive_float, default=20.0, help="window length, s")
+    c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
+    c.set_defaults(func=_run_train_classifier)
+
+
+def _run_train_classifier(args: argparse.Namespace) -> int:
+    import torch
+
+    from thruster_fdd.core.diagnosis import ClassifierConfig, train_classifier
+    from thruster_fdd.core.trace_io import read_traces
+
+    if args.epochs < 1:
+        raise UsageError(f"--epochs must be >= 1, got {args.epochs}")
+    torch.set_num_threads(1)
+    traces = read_traces(args.data)
+    config = ClassifierConfig(window_s=args.window, epochs=args.epochs)
+    card = train_classifier(
+        traces, args.nominal, args.out, seed=args.seed, config=config, progress=True
+    )
+    m = card.training_metrics["heldout"]
+    print(
+        f"exported {card.model_id} to {args.out}: {len(traces)} trace(s), nominal model "
+        f"{card.nominal_model_id}; held-out windows: balanced accuracy "
+        f"{m['balanced_accuracy']:.4f}, ECE {m['ece']:.4f}"
+    )
+    return EXIT_OK
+
+
+def _run_train_nominal(args: argparse.Namespace) -> int:
+    import torch
+
+    from thruster_fdd.core.trace_io import read_traces
+    from thruster_fdd.core.training import default_config, train_nominal
+
+    if not 0.0 <= args.validation_fraction < 1.0:
+        raise UsageError(f"--validation-fraction must be in [0, 1), got {args.validation_fraction}")
+    torch.set_num_threads(1)
+    traces = read_traces(args.data)
+    card = train_nominal(
+        traces,
+        args.out,
+        seed=args.seed,
+        config=default_config(args.mode),
+        validation_fraction=args.validation_fraction,
+        progress=True,
+    )
+    m = card.training_metrics.get("validation", card.training_metrics["train"])
+    print(
+        f"exported {card.model_id} ({card.mode}) to {args.out}: {len(traces)} trace(s); "
+        f"rpm r2 {m['rpm_r2']:.4f}, current r2 {m['current_r2']:.4f}"
+    )
+    return EXIT_OK
 
 
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "evaluate",
         help="evaluate models: the paper's Table 2 (nominal) and Table 3 (classifier)",
-        description="Evaluate models on given data; writes Markdown, JSON and PNG.",
+        description=(
+            "evaluate nominal --model DIR --data TRACE... [--json OUT]: metrics of an exported "
+            "nominal model on traces (free run by default). evaluate nominal without --model: "
+            "the paper's Table 2 protocol on simulated data (train on the 0.01 Hz sine, test at "
+            "0.01-0.04 Hz, repeated seeds; ours vs the paper vs SysIdentPy) written to --out as "
+            "Markdown, JSON and PNG. evaluate classifier [--model DIR] [--nominal DIR] [--seed "
+            "N]: the paper's Table 3 protocol (MLP and LSTM per sample on signals and on "
+            "residuals, 3-fold time-series CV, separate test set) beside the exported window "
+            "classifier on unseen simulated thrusters, fault-onset times and UNKNOWN checks, "
+            "written to --out as table3.md, table3.json and confusion-matrix PNGs."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("target", choices=["nominal", "classifier"])
     p.add_argument("--model", type=Path, metavar="DIR")
     p.add_argument("--data", nargs="+", type=Path, metavar="TRACE")
     p.add_argument("--json", type=Path, metavar="OUT")
-    p.set_defaults(func=_pending("evaluate"))
+    p.add_argument(
+        "--mode",
+        choices=["parallel", "series-parallel"],
+        default="parallel",
+        help="with --model: NARX configuration to evaluate",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        metavar="DIR",
+        help="output folder (default out/table2 for nominal, out/table3 for classifier)",
+    )
+    p.add_argument(
+        "--nominal",
+        type=Path,
+        default=Path("models/nominal"),
+        metavar="DIR",
+        help="classifier: the nominal model that makes the residuals",
+    )
+    p.add_argument("--seed", type=int, default=0, help="classifier: seed (shifts unseen units)")
+    p.add_argument("--seeds", type=int, default=3, help="Table 2: repeated runs (seeds 0..N-1)")
+    p.add_argument("--rate", type=float, default=10.0, help="Table 2: sample rate, Hz")
+    p.add_argument("--train-samples", type=int, default=2000, help="Table 2")
+    p.add_argument("--test-samples", type=int, default=1000, help="Table 2")
+    p.add_argument("--epochs", type=int, help="Table 2: one-step epochs (default: training's)")
+    p.add_argument("--no-sysidentpy", action="store_true", help="Table 2: skip the peer")
+    p.add_argument("--no-plots", action="store_true", help="Table 2: skip the figures")
+    p.set_defaults(func=_run_evaluate)
+
+
+def _run_evaluate(args: argparse.Namespace) -> int:
+    if args.target == "classifier":
+        return _run_evaluate_classifier(args)
+    if args.out is None:
+        args.out = Path("out/table2")
+    import json
+    from dataclasses import replace
+
+    import torch
+
+    from thruster_fdd.core import evaluation as ev
+
+    torch.set_num_threads(1)
+    if args.model is not None:
+        from thruster_fdd.core.nominal import NominalModel
+        from thruster_fdd.core.trace_io import read_traces
+
+        if not args.data:
+            raise UsageError("evaluate nominal --model needs --data TRACE...")
+        result = ev.evaluate_model_on_traces(
+            NominalModel.load(args.model), read_traces(args.data), args.mode
+        )
+        text = json.dumps(result, indent=2)
+        if args.json is not None:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(text + "\n")
+        print(text)
+        return EXIT_OK
+    if args.seeds < 1 or args.train_samples < 100 or args.test_samples < 100:
+        raise UsageError("need --seeds >= 1 and --train-samples, --test-samples >= 100")
+    cfg = ev.ProtocolConfig(
+        rate_hz=args.rate,
+        train_samples=args.train_samples,
+        test_samples=args.test_samples,
+        seeds=tuple(range(args.seeds)),
+        sysidentpy=not args.no_sysidentpy,
+    )
+    if args.epochs is not None:
+        cfg = replace(cfg, train=replace(cfg.train, epochs=args.epochs))
+    scores = ev.run_table2(cfg, progress=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    table = ev.table2_markdown(scores, cfg)
+    (args.out / "table2.md").write_text(table)
+    rows = [dict(vars(s), r2=s.r2) for s in scores]
+    json_path = args.json if args.json is not None else args.out / "table2.json"
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(rows, indent=1) + "\n")
+    if not args.no_plots:
+        ev.plot_table2_predictions(cfg, args.out)
+    print(table)
+    print(f"wrote {args.out / 'table2.md'}, {json_path}")
+    return EXIT_OK
+
+
+def _run_evaluate_classifier(args: argparse.Namespace) -> int:
+    import torch
+
+    from thruster_fdd.core.classifier_eval import run_evaluation, table3_markdown
+
+    torch.set_num_threads(1)
+    out = args.out if args.out is not None else Path("out/table3")
+    model = args.model if args.model is not None else Path("models/classifier")
+    result = run_evaluation(args.nominal, model, out, seed=args.seed, progress=True)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text((out / "table3.json").read_text())
+    print(table3_markdown(result))
+    print(f"wrote {out / 'table3.md'}, {out / 'table3.json'} and confusion PNGs in {out}")
+    return EXIT_OK
 
 
 def _add_diagnose(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "diagnose",
         help="offline diagnosis of a trace file (per window and overall, JSON)",
-        description="Diagnose a trace CSV / MCAP file with the exported models.",
+        description=(
+            "Diagnose a trace CSV / MCAP file with the exported models (DIR/nominal and "
+            "DIR/classifier), through the same residual and window code as the nodes: one "
+            "decision per --hop seconds over the classifier's window, and an overall label. "
+            "JSON: {overall: {label, confidence}, windows: [{t_start, t_end, label, "
+            "probabilities}]}."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("trace", type=Path, metavar="TRACE")
     p.add_argument("--models", type=Path, default=Path("models"), metavar="DIR")
     p.add_argument("--json", type=Path, metavar="OUT")
-    p.set_defaults(func=_pending("diagnose"))
+    p.add_argument("--hop", type=_positive_float, default=1.0, help="time between decisions, s")
+    p.set_defaults(func=_run_diagnose)
+
+
+def _run_diagnose(args: argparse.Namespace) -> int:
+    import json
+
+    import torch
+
+    from thruster_fdd.core.diagnosis import diagnose_trace
+    from thruster_fdd.core.trace_io import read_traces
+
+    torch.set_num_threads(1)
+    if args.trace.is_dir() or not args.trace.is_file():
+        raise UsageError(f"{args.trace}: no such trace file")
+    traces = read_traces([args.trace])
+    if len(traces) > 1:
+        print(f"note: {args.trace} holds {len(traces)} traces; using the first", file=sys.stderr)
+    result = diagnose_trace(
+        traces[0], args.models / "nominal", args.models / "classifier", hop_s=args.hop
+    )
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    windows = result["windows"]
+    overall = result["overall"]
+    print(
+        f"{args.trace}: {overall['label']} (confidence {overall['confidence']:.2f}) over "
+        f"{len(windows)} window(s)"
+    )
+    changes = [w for i, w in enumerate(windows) if i == 0 or w["label"] != windows[i - 1]["label"]]
+    for w in changes:
+        print(f"  from {w['t_end']:8.1f} s: {w['label']}")
+    return EXIT_OK
 
 
 def _add_discrepancy(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "discrepancy",
         help="name the physical effects the simulator misses against a measured trace",
-        description="Compare the simulator with a measured trace and add the missing effects.",
+        description=(
+            "Calibrate a simulator configuration to a measured trace (free-run simulation "
+            "error), locate where it disagrees, name the missing effects of the effect "
+            "vocabulary (dead_time, deadband, esc_lag, slew_rate_limit, coulomb_friction, "
+            "viscous_friction, voltage_sag, current_limit) and write DIR/report.json, "
+            "DIR/model.yaml, DIR/report.md and PNG plots (docs/discrepancy.md)."
+        ),
     )
-    p.add_argument("--measured", type=Path, required=True, metavar="TRACE")
-    p.add_argument("--start", required=True, metavar="{t100|t200|CONFIG}")
-    p.add_argument("--drop", action="append", default=[], metavar="EFFECT")
+    p.add_argument("--measured", type=Path, required=True, metavar="TRACE",
+                   help="measured trace: trace CSV or MCAP (first thruster)")  # fmt: skip
+    p.add_argument("--start", required=True, metavar="{t100|t200|CONFIG}",
+                   help="starting configuration: preset name or YAML file")  # fmt: skip
+    p.add_argument("--drop", action="append", default=[], metavar="EFFECT",
+                   help="remove this effect from the start (repeatable)")  # fmt: skip
     p.add_argument("--out", type=Path, required=True, metavar="DIR")
-    p.set_defaults(func=_pending("discrepancy"))
+    p.add_argument("--workers", type=int, default=2, help="processes for candidate re-fits")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+    def run(args: argparse.Namespace) -> int:
+        from thruster_fdd.core.discrepancy import run as run_discrepancy
+        from thruster_fdd.core.discrepancy_report import write_report
+        from thruster_fdd.core.simconfig import load_config
+        from thruster_fdd.core.trace_io import read_traces
+
+        if args.measured.is_dir() or not args.measured.is_file():
+            raise UsageError(f"--measured {args.measured}: no such trace file")
+        if args.workers < 1:
+            raise UsageError(f"--workers must be >= 1, got {args.workers}")
+        source = load_config(args.start)
+        traces = read_traces([args.measured])
+        if len(traces) > 1:
+            print(f"note: {args.measured} holds {len(traces)} traces; using the first",
+                  file=sys.stderr)  # fmt: skip
+        log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+        result, data = run_discrepancy(
+            traces[0], source, args.drop, workers=args.workers, progress=not args.quiet, log=log
+        )
+        for warning in result.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+        write_report(result, data, args.out)
+        named = ", ".join(result.added) or "none"
+        print(f"{result.verdict}: missing {named}; report in {args.out}")
+        return EXIT_OK
+
+    p.set_defaults(func=run)
 
 
 def _add_replay(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "replay",
-        help="play an MCAP recording through the running node set",
-        description="Replay a recording's telemetry through the nodes and check their output.",
+    from thruster_fdd import replay
+
+    replay.add_arguments(
+        sub.add_parser(
+            "replay",
+            help="play an MCAP recording through the model nodes and check the diagnoses",
+            description=replay.DESCRIPTION,
+            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        )
     )
-    p.add_argument("bag", type=Path, metavar="BAG")
-    p.add_argument(
-        "--rate", type=_positive_float, help="rate factor (default: as fast as possible)"
-    )
-    p.set_defaults(func=_pending("replay"))
 
 
 def _add_record(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "record",
         help="record every topic of the graph to MCAP",
-        description="Record all discovered topics as raw CDR to MCAP files.",
+        description=(
+            "Run the recorder node in the foreground: every discovered topic, as raw CDR, into "
+            "size/duration-split MCAP files (rosbag2 layout) until Ctrl-C. More settings: the "
+            "recorder's ROS parameters (README)."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--out", type=Path, default=Path("recordings"), metavar="DIR")
-    p.set_defaults(func=_pending("record"))
+    p.add_argument("--max-file-mb", type=_positive_float, default=256.0, help="split size, MiB")
+    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p.add_argument("--vehicle", default="sim-auv", help="vehicle name for the metadata")
+    p.set_defaults(func=_run_record)
+
+
+def _run_record(args: argparse.Namespace) -> int:
+    from thruster_fdd.nodes import recorder
+
+    recorder.main(
+        [
+            "--ros-args",
+            "-p",
+            f"output_dir:={args.out}",
+            "-p",
+            f"max_file_mb:={args.max_file_mb}",
+            "-p",
+            f"compression:={args.compression}",
+            "-p",
+            f"vehicle:={args.vehicle}",
+        ]
+    )
+    return EXIT_OK
 
 
 def _add_up(sub: argparse._SubParsersAction) -> None:

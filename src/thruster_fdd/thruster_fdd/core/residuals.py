@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
+
 OK = 0
 WARMING_UP = 1
 STATE_RESET = 2
@@ -21,6 +23,35 @@ INPUT_INVALID = 4
 # Decimation accepts a sample this much earlier than one model period after the last one, so
 # jitter in telemetry stamps does not skip every other sample.
 _PERIOD_TOLERANCE = 0.1
+
+
+def too_soon(dt_s: float, period_s: float) -> bool:
+    """Whether a sample ``dt_s`` after the last fed one falls within the model period."""
+    return 0.0 <= dt_s < (1.0 - _PERIOD_TOLERANCE) * period_s
+
+
+def decimate(t: np.ndarray, period_s: float) -> np.ndarray:
+    """Which samples a :class:`ResidualStream` feeds to its model (valid, gap-free input).
+
+    Parameters
+    ----------
+    t : np.ndarray, shape (n,)
+        Sample times, s, increasing.
+    period_s : float
+        The model's sample time, s.
+
+    Returns
+    -------
+    np.ndarray of bool, shape (n,)
+        True for the samples that produce a residual.
+    """
+    keep = np.zeros(len(t), dtype=bool)
+    last: float | None = None
+    for i, ti in enumerate(t.tolist()):
+        if last is None or not too_soon(ti - last, period_s):
+            keep[i] = True
+            last = ti
+    return keep
 
 
 class SteppableModel(Protocol):
@@ -152,8 +183,8 @@ class ResidualStream:
         command, voltage, rpm, current : float
             Applied command (-1..1), bus voltage (V), rpm, bus current (A).
         sequence : int or None
-            The driver's sequence number; a jump of more than one frame period's worth of
-            samples is treated as a gap.
+            The driver's sequence number; a number lower than the previous one (a restarted
+            driver or bridge) resets the state.
 
         Returns
         -------
@@ -170,7 +201,7 @@ class ResidualStream:
             )
         if self._last_t is not None:
             dt = t_s - self._last_t
-            if dt < (1.0 - _PERIOD_TOLERANCE) * self._period and dt >= 0.0:
+            if too_soon(dt, self._period):
                 return None
             if dt < 0.0 or dt > self._max_gap_s:
                 reason = f"time gap of {dt:.3f} s"

@@ -29,7 +29,7 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("output_dir", "recordings", "folder of the MCAP files (created if missing)"),
     ("prefix", "", "file name prefix (empty: the start time, YYYYmmdd_HHMMSS)"),
     ("include", ".*", "regex: record topics whose name matches"),
-    ("exclude", "^/(rosout|parameter_events)$", "regex: never record these topics"),
+    ("exclude", ["/rosout", "/parameter_events"], "topics never recorded (exact names)"),
     ("discovery_period_s", 0.5, "how often new topics are looked for, s"),
     ("max_file_mb", 256.0, "split: start a new file past this size, MiB"),
     ("max_file_duration_s", 600.0, "split: start a new file past this span, s"),
@@ -62,7 +62,7 @@ class Recorder(Node):
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         p = self.get_parameter
         self._include = re.compile(p("include").value)
-        self._exclude = re.compile(p("exclude").value)
+        self._exclude = set(p("exclude").value)
         self._policy = RecordingPolicy(
             max_file_bytes=int(float(p("max_file_mb").value) * 1024 * 1024),
             max_file_duration_s=float(p("max_file_duration_s").value),
@@ -108,7 +108,7 @@ class Recorder(Node):
         for topic, types in self.get_topic_names_and_types():
             if topic in self._subscribed or not types:
                 continue
-            if not self._include.search(topic) or self._exclude.search(topic):
+            if not self._include.search(topic) or topic in self._exclude:
                 continue
             type_name = types[0]
             try:

@@ -1,0 +1,412 @@
+"""Where the simulator disagrees with a measurement, and the discrepancy report files.
+
+``regions`` splits the squared residual of rpm and current over operating regions, ``signatures``
+measures the cues that point to causes, ``write_report`` writes report.json, model.yaml,
+report.md, details.json and the PNG plots of ``thruster-fdd discrepancy``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from thruster_fdd.core.discrepancy import (
+    Fit,
+    Measured,
+    Result,
+    reported,
+    residuals,
+    simulate_model,
+)
+from thruster_fdd.core.simconfig import dump_config
+
+TRANSIENT_S = 3.0
+"""Samples within this time after a command change count as transient, s."""
+
+
+@dataclass(frozen=True)
+class Region:
+    """Share of one signal's squared residual that lies in one operating region.
+
+    Attributes
+    ----------
+    signal : str
+        ``rpm`` or ``current``.
+    region : str
+        Region description.
+    error_share : float
+        Fraction of the signal's squared residual inside the region.
+    sample_share : float
+        Fraction of the samples inside the region.
+    rmse : float
+        RMSE inside the region (rpm or A).
+    """
+
+    signal: str
+    region: str
+    error_share: float
+    sample_share: float
+    rmse: float
+
+
+def region_masks(data: Measured) -> dict[str, np.ndarray]:
+    """Boolean masks, shape (n,), of the operating regions used by ``regions``."""
+    mag = np.abs(data.command)
+    change = np.flatnonzero(np.abs(np.diff(data.command)) > 0.02) + 1
+    last = np.full(len(data.t), -np.inf)
+    last[0] = data.t[0]
+    last[change] = data.t[change]
+    since = data.t - np.maximum.accumulate(last)
+    high_i = np.quantile(data.current, 0.9)
+    return {
+        "|command| < 0.1 (near zero)": mag < 0.1,
+        "0.1 <= |command| < 0.4": (mag >= 0.1) & (mag < 0.4),
+        "0.4 <= |command| < 0.7": (mag >= 0.4) & (mag < 0.7),
+        "|command| >= 0.7": mag >= 0.7,
+        "reverse (command < 0)": data.command < 0.0,
+        f"transient (< {TRANSIENT_S:g} s after a command change)": since < TRANSIENT_S,
+        f"steady (>= {TRANSIENT_S:g} s after a command change)": since >= TRANSIENT_S,
+        f"high current (top 10 %, >= {high_i:.2f} A)": data.current >= high_i,
+    }
+
+
+def regions(sim: dict[str, np.ndarray], data: Measured, mask: np.ndarray) -> list[Region]:
+    """Split the squared residuals of rpm and current over ``region_masks`` within ``mask``.
+
+    Returns
+    -------
+    list of Region
+        For each signal, every region, sorted by error share (largest first).
+    """
+    res = residuals(sim, data)
+    out = []
+    for signal in ("rpm", "current"):
+        sq = res[signal] ** 2
+        total = float(sq[mask].sum()) or 1.0
+        rows = []
+        for name, region in region_masks(data).items():
+            sel = region & mask
+            if not sel.any():
+                continue
+            rows.append(
+                Region(
+                    signal=signal,
+                    region=name,
+                    error_share=float(sq[sel].sum()) / total,
+                    sample_share=float(sel.sum()) / float(mask.sum()),
+                    rmse=float(np.sqrt(sq[sel].mean())),
+                )
+            )
+        out += sorted(rows, key=lambda r: -r.error_share)
+    return out
+
+
+def _lag_s(data: Measured, sim: dict[str, np.ndarray], max_lag_s: float = 3.0) -> float:
+    """Delay of the measured speed behind the model's, s (cross-correlation of increments)."""
+    a = np.diff(data.rpm)
+    b = np.diff(reported(sim, data)["rpm"])
+    dt = float(np.median(np.diff(data.t)))
+    lags = range(-int(max_lag_s / dt), int(max_lag_s / dt) + 1)
+    scores = []
+    for k in lags:
+        x, y = (a[k:], b[: len(b) - k]) if k >= 0 else (a[:k], b[-k:])
+        scores.append(float(np.dot(x, y)))
+    return float(list(lags)[int(np.argmax(scores))] * dt)
+
+
+def _slope(x: np.ndarray, y: np.ndarray) -> float:
+    if np.ptp(x) <= 0.0:
+        return 0.0
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def signatures(sim: dict[str, np.ndarray], data: Measured) -> dict[str, float]:
+    """Cues of the residual of one simulation against the measurement (all samples).
+
+    Returns
+    -------
+    dict of str to float
+        ``lag_s`` (measured speed behind the model, s), ``zero_band_measured`` and
+        ``zero_band_model`` (largest steady |command| with speed reported 0),
+        ``current_max_measured`` and ``current_max_model`` (A, 99.5 % quantile; a lower
+        measured maximum means clipping),
+        ``current_residual_per_a`` (slope of current residual against measured current, A/A),
+        ``voltage_residual_per_a`` (slope of bus-voltage residual against current, V/A; negative
+        means an unmodelled voltage sag), ``steady_share_rpm`` (share of the rpm squared
+        residual in steady state).
+    """
+    rep = reported(sim, data)
+    masks = region_masks(data)
+    steady = next(m for k, m in masks.items() if k.startswith("steady"))
+    mag = np.abs(data.command)
+
+    def band(rpm: np.ndarray) -> float:
+        zero = steady & (rpm == 0.0)
+        return float(mag[zero].max()) if zero.any() else 0.0
+
+    res = residuals(sim, data)
+    sq = res["rpm"] ** 2
+    return {
+        "lag_s": _lag_s(data, sim),
+        "zero_band_measured": band(data.rpm),
+        "zero_band_model": band(rep["rpm"]),
+        "current_max_measured": float(np.quantile(data.current, 0.995)),
+        "current_max_model": float(np.quantile(rep["current"], 0.995)),
+        "current_residual_per_a": _slope(data.current, res["current"]),
+        "voltage_residual_per_a": _slope(data.current, res["voltage"]),
+        "steady_share_rpm": float(sq[steady].sum() / max(sq.sum(), 1e-300)),
+    }
+
+
+def describe(sig: dict[str, float]) -> list[str]:
+    """Plain-language reading of ``signatures`` (one line per notable cue)."""
+    lines = []
+    if abs(sig["lag_s"]) >= 0.1:
+        lines.append(
+            f"the measured speed lags the model by {sig['lag_s']:.2f} s "
+            "(cross-correlation of speed increments): a delay or lag is missing"
+        )
+    if sig["zero_band_measured"] - sig["zero_band_model"] >= 0.01:
+        lines.append(
+            f"flat zone: speed stays 0 up to |command| {sig['zero_band_measured']:.3f} measured, "
+            f"{sig['zero_band_model']:.3f} in the model (deadband or static friction)"
+        )
+    if sig["current_max_model"] > 1.03 * sig["current_max_measured"]:
+        lines.append(
+            f"clipping: measured current tops out at {sig['current_max_measured']:.2f} A, "
+            f"the model reaches {sig['current_max_model']:.2f} A (current limit)"
+        )
+    if abs(sig["current_residual_per_a"]) >= 0.02:
+        lines.append(
+            f"current offset grows with current: {sig['current_residual_per_a']:+.3f} A "
+            "per A of measured current"
+        )
+    if sig["voltage_residual_per_a"] <= -0.005:
+        lines.append(
+            f"bus voltage falls {-sig['voltage_residual_per_a']:.3f} V per A more than "
+            "the model's (supply resistance, voltage sag)"
+        )
+    return lines or ["no notable cue: the residual is close to noise"]
+
+
+def _plots(result: Result, data: Measured, sims: dict[str, dict], out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = []
+    held_idx = np.flatnonzero(data.held)
+    breaks = np.flatnonzero(np.diff(held_idx) > 1) + 1
+    blocks = np.split(held_idx, breaks)
+    block = blocks[len(blocks) // 2]
+    seg = block[(data.t[block] - data.t[block[0]]) <= 90.0]
+    colors = {"measured": "k", "before": "tab:red", "after": "tab:blue"}
+
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for ax, ch, unit in ((axes[0], "rpm", "rpm"), (axes[1], "current", "A")):
+        ax.plot(
+            data.t[seg], data.channel(ch)[seg], color=colors["measured"], lw=1.0, label="measured"
+        )
+        for key in ("before", "after"):
+            ax.plot(
+                data.t[seg],
+                reported(sims[key], data)[ch][seg],
+                color=colors[key],
+                lw=1.0,
+                label=f"model {key}",
+            )
+        ax.set_ylabel(f"{ch} ({unit})")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="best", fontsize=8)
+    axes[1].set_xlabel("t (s), held-out data")
+    fig.suptitle("Overlay before / after the added effects (held-out)")
+    fig.tight_layout()
+    fig.savefig(out / "overlay.png", dpi=110)
+    plt.close(fig)
+    names.append("overlay.png")
+
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
+    for col, key in enumerate(("before", "after")):
+        res = residuals(sims[key], data)
+        for row, (ch, unit) in enumerate((("rpm", "rpm"), ("current", "A"))):
+            ax = axes[row, col]
+            ax.scatter(
+                data.command[data.held], res[ch][data.held], s=2, alpha=0.4, color=colors[key]
+            )
+            ax.axhline(0.0, color="k", lw=0.5)
+            ax.set_ylabel(f"{ch} residual ({unit})")
+            ax.set_title(f"model {key}", fontsize=9)
+            ax.grid(alpha=0.3)
+    for ax in axes[1]:
+        ax.set_xlabel("command")
+    fig.suptitle("Residual (measured - model) against command, held-out")
+    fig.tight_layout()
+    fig.savefig(out / "residual_vs_command.png", dpi=110)
+    plt.close(fig)
+    names.append("residual_vs_command.png")
+
+    fig, ax = plt.subplots(figsize=(6, 5))
+    ax.plot(data.command[seg], data.rpm[seg], color="k", lw=1.0, label="measured")
+    for key in ("before", "after"):
+        ax.plot(
+            data.command[seg],
+            reported(sims[key], data)["rpm"][seg],
+            color=colors[key],
+            lw=1.0,
+            label=f"model {key}",
+        )
+    ax.set_xlabel("command")
+    ax.set_ylabel("rpm")
+    ax.set_title("Command-rpm loop (hysteresis), held-out")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "hysteresis.png", dpi=110)
+    plt.close(fig)
+    names.append("hysteresis.png")
+    return names
+
+
+def _fmt(x: float) -> str:
+    if not math.isfinite(x):
+        return str(x)
+    return f"{x:.4g}"
+
+
+def _gap_rows(label: str, fit: Fit) -> str:
+    g = fit.gap
+    return (
+        f"| {label} | {g.rpm_rmse:.1f} | {g.rpm_r2:.4f} | {g.current_rmse:.3f} | "
+        f"{g.current_r2:.4f} | {g.voltage_rmse:.3f} | {g.score:.2f} |"
+    )
+
+
+def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[str]) -> str:
+    """The report.md text."""
+    rep = result.report()
+    lines = [
+        "# Discrepancy report",
+        "",
+        f"**Verdict: `{rep['verdict']}`**"
+        + (f" — missing: {', '.join(f'`{n}`' for n in result.added)}" if result.added else ""),
+        "",
+        f"Samples: {len(data.t)} over {data.t[-1]:.0f} s; fit on {int(data.fit.sum())}, "
+        f"held out {int(data.held.sum())} (interleaved blocks). Noise estimate: "
+        f"rpm {data.sigma['rpm']:.3g}, current {data.sigma['current']:.3g} A, "
+        f"voltage {data.sigma['voltage']:.3g} V.",
+        "",
+    ]
+    lines += [f"- warning: {w}" for w in result.warnings]
+    lines += ["", "## Named missing effects", ""]
+    if rep["missing_effects"]:
+        lines += ["| effect | parameter | value | std |", "|---|---|---|---|"]
+        for m in rep["missing_effects"]:
+            for p, v in m["params"].items():
+                lines.append(f"| `{m['name']}` | {p} | {_fmt(v)} | {_fmt(m['uncertainty'][p])} |")
+    else:
+        lines.append("none")
+    lines += [
+        "",
+        "## Gap on held-out data, after each step",
+        "",
+        "score: mean squared residual per channel in noise-variance units (1 = noise only).",
+        "",
+        "| model | rpm RMSE | rpm r² | current RMSE (A) | current r² | voltage RMSE (V) | score |",
+        "|---|---|---|---|---|---|---|",
+        _gap_rows("calibrated start", result.start),
+    ]
+    for rnd in result.rounds:
+        chosen = next((c for c in rnd.candidates if c.name == rnd.chosen), None)
+        if chosen is not None:
+            lines.append(_gap_rows(f"+ {chosen.name} (candidate re-fit)", chosen.fit))
+    lines += [_gap_rows("final (calibrated)", result.final), ""]
+    for k, rnd in enumerate(result.rounds, 1):
+        lines += [
+            f"## Round {k}: candidates",
+            "",
+            "| effect | ΔBIC (fit) | held-out gain | held-out score | accepted |",
+            "|---|---|---|---|---|",
+        ]
+        for c in sorted(rnd.candidates, key=lambda c: c.fit.gap.score):
+            lines.append(
+                f"| `{c.name}` | {c.delta_bic:.1f} | {c.gain:.2f} | "
+                f"{c.fit.gap.score:.2f} | {'yes' if c.accepted else 'no'} |"
+            )
+        lines.append("")
+    for key in ("before", "after"):
+        sim = sims[key]
+        lines += [f"## Where the model {key} disagrees (held-out)", ""]
+        lines += [f"- {s}" for s in describe(signatures(sim, data))]
+        lines += [
+            "",
+            "| signal | region | share of squared error | share of samples | RMSE |",
+            "|---|---|---|---|---|",
+        ]
+        for r in regions(sim, data, data.held):
+            lines.append(
+                f"| {r.signal} | {r.region} | {r.error_share:.2f} | "
+                f"{r.sample_share:.2f} | {r.rmse:.3g} |"
+            )
+        lines.append("")
+    lines += ["## Plots", ""] + [f"![{p}]({p})" for p in plots] + [""]
+    return "\n".join(lines)
+
+
+def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, Path]:
+    """Write report.json, model.yaml, report.md, details.json and PNG plots into ``out``.
+
+    Returns
+    -------
+    dict of str to Path
+        File kind -> written path.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    sims = {
+        "before": simulate_model(result.start.config, data),
+        "after": simulate_model(result.final.config, data),
+    }
+    plots = _plots(result, data, sims, out)
+    (out / "report.json").write_text(json.dumps(result.report(), indent=2) + "\n")
+    dump_config(result.final.config, out / "model.yaml")
+    (out / "report.md").write_text(markdown(result, data, sims, plots))
+    details = {
+        "warnings": list(result.warnings),
+        "signatures_before": signatures(sims["before"], data),
+        "signatures_after": signatures(sims["after"], data),
+        "regions_before": [r.__dict__ for r in regions(sims["before"], data, data.held)],
+        "regions_after": [r.__dict__ for r in regions(sims["after"], data, data.held)],
+        "rounds": [
+            {
+                "chosen": rnd.chosen,
+                "candidates": [
+                    {
+                        "name": c.name,
+                        "delta_bic": c.delta_bic,
+                        "gain": c.gain,
+                        "held_out_score": c.fit.gap.score,
+                        "accepted": c.accepted,
+                    }
+                    for c in rnd.candidates
+                ],
+            }
+            for rnd in result.rounds
+        ],
+        "gap_score_before": result.start.gap.score,
+        "gap_score_after": result.final.gap.score,
+        "fitted": dict(zip(result.final.names, result.final.values.tolist(), strict=True)),
+    }
+    (out / "details.json").write_text(json.dumps(details, indent=2) + "\n")
+    files = {
+        "report.json": out / "report.json",
+        "model.yaml": out / "model.yaml",
+        "report.md": out / "report.md",
+        "details.json": out / "details.json",
+    }
+    files.update({p: out / p for p in plots})
+    return files

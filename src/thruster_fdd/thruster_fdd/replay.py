@@ -1,0 +1,185 @@
+"""``thruster-fdd replay``: a recording's telemetry through the model nodes, checked.
+
+Starts a ``nominal_model`` (and, when a classifier is exported, a ``classifier``) node per
+thruster of the bag, publishes the recorded telemetry in lockstep with the residuals it
+produces (``core.replay``), collects the published diagnoses and compares them with the bag's
+recorded diagnoses or ground truth. Exit 0 when every thruster passes, 1 when one does not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from collections import deque
+from pathlib import Path
+
+from thruster_fdd.core.replay import ReplayCheck, ThrusterBag, check, load_bag
+
+DESCRIPTION = (
+    "Replay the telemetry of an MCAP recording through freshly started model nodes "
+    "(nominal_model, classifier) as fast as they answer, or at --rate times real time, and "
+    "check the diagnoses they publish against the diagnoses recorded in the bag or the "
+    "ground-truth labels of a simulated recording. Exit 0 when all thrusters pass, 1 if not."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``thruster-fdd replay``."""
+    p.add_argument("bag", type=Path, metavar="BAG", help="MCAP recording")
+    p.add_argument("--rate", type=float, help="rate factor (default: as fast as possible)")
+    p.add_argument("--models", type=Path, help="folder with nominal/ and classifier/")
+    p.add_argument("--json", type=Path, metavar="OUT", help="write the result as JSON")
+    p.add_argument(
+        "--min-agreement", type=float, default=0.9, help="decisions that must match, 0..1"
+    )
+    p.set_defaults(func=run_replay)
+
+
+# Samples published ahead of their residual: below the nodes' sensor-data queue depth (10), so
+# none can be dropped, and enough to keep the nodes busy between two answers.
+IN_FLIGHT = 4
+
+
+def _wait_answer(executor: object, answered: set[int], in_flight: deque[int]) -> int:
+    """Wait for the oldest sample in flight to be answered; returns 1 on a time-out, else 0."""
+    oldest = in_flight.popleft()
+    deadline = time.monotonic() + 1.0
+    while oldest not in answered:
+        if time.monotonic() > deadline:
+            return 1
+        executor.spin_once(timeout_sec=0.05)  # type: ignore[attr-defined]
+    return 0
+
+
+def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> list[subprocess.Popen[bytes]]:
+    procs = []
+    for bag in bags:
+        for node, folder in (("nominal_model", "nominal"), ("classifier", "classifier")):
+            if not (models / folder / "model_card.json").is_file():
+                continue
+            cmd = [sys.executable, "-m", f"thruster_fdd.nodes.{node}", "--ros-args"]
+            cmd += ["-r", f"__ns:=/thruster/{bag.thruster_id}"]
+            cmd += ["-p", f"thruster_id:={bag.thruster_id}", "-p", f"model_dir:={models / folder}"]
+            procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL))
+    return procs
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    """Replay ``args.bag`` and check the diagnoses; returns the exit code."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
+
+    from thruster_fdd.core.nominal import read_card
+    from thruster_fdd.core.paths import default_models_dir
+
+    if not args.bag.is_file():
+        raise ValueError(f"{args.bag}: no such recording")
+    models = (args.models or default_models_dir()).resolve()
+    period = read_card(models / "nominal").sample_time_s
+    bags = load_bag(args.bag, period)
+    procs = _start_nodes(bags, models)
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("replay", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    answered: dict[str, set[int]] = {b.thruster_id: set() for b in bags}
+    diagnoses: dict[str, list[tuple[float, str]]] = {b.thruster_id: [] for b in bags}
+    pubs = {}
+    for bag in bags:
+        tid = bag.thruster_id
+        pubs[tid] = node.create_publisher(EscTelemetry, f"/thruster/{tid}/esc/telemetry", reliable)
+
+        def on_residual(msg: Residual, tid: str = tid) -> None:
+            answered[tid].add(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+
+        def on_diagnosis(msg: Diagnosis, tid: str = tid) -> None:
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            diagnoses[tid].append((stamp, msg.label))
+
+        # Residuals are best effort (sensor data); lockstep means one in flight at a time.
+        node.create_subscription(
+            Residual, f"/thruster/{tid}/fdd/residual", on_residual, qos_profile_sensor_data
+        )
+        node.create_subscription(
+            Diagnosis, f"/thruster/{tid}/fdd/diagnosis", on_diagnosis, reliable
+        )
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not all(
+            p.get_subscription_count() >= 1 for p in pubs.values()
+        ):
+            executor.spin_once(timeout_sec=0.1)
+        if not all(p.get_subscription_count() >= 1 for p in pubs.values()):
+            print("thruster-fdd replay: the model nodes did not start", file=sys.stderr)
+            return 1
+        start = time.monotonic()
+        timeouts = 0
+        total = 0
+        first_ns = min(b.stamps_ns[0] for b in bags)
+        in_flight: deque[int] = deque()
+        for bag in bags:
+            for stamp_ns, raw in zip(bag.stamps_ns, bag.raw, strict=True):
+                if args.rate:
+                    due = start + (stamp_ns - first_ns) * 1e-9 / args.rate
+                    while time.monotonic() < due:
+                        executor.spin_once(timeout_sec=due - time.monotonic())
+                while len(in_flight) >= IN_FLIGHT:
+                    timeouts += _wait_answer(executor, answered[bag.thruster_id], in_flight)
+                pubs[bag.thruster_id].publish(raw)
+                in_flight.append(stamp_ns)
+                total += 1
+            while in_flight:
+                timeouts += _wait_answer(executor, answered[bag.thruster_id], in_flight)
+        settle = time.monotonic() + 1.0
+        while time.monotonic() < settle:
+            executor.spin_once(timeout_sec=0.05)
+        wall = time.monotonic() - start
+    finally:
+        for proc in procs:
+            proc.send_signal(2)
+        for proc in procs:
+            proc.wait(timeout=10)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    span = max((b.stamps_ns[-1] - b.stamps_ns[0]) * 1e-9 for b in bags)
+    results: list[ReplayCheck] = [
+        check(b, diagnoses[b.thruster_id], min_agreement=args.min_agreement) for b in bags
+    ]
+    print(
+        f"replayed {total} samples ({span:.0f} s of {len(bags)} thruster(s)) in {wall:.1f} s "
+        f"= {span / wall:.0f}x real time; {timeouts} samples got no residual"
+    )
+    for r in results:
+        agreement = "-" if r.agreement is None else f"{r.agreement:.1%}"
+        print(
+            f"{r.thruster_id}: {r.decisions} diagnoses, sequence {' -> '.join(r.sequence) or '-'}; "
+            f"expected ({r.source}) {' -> '.join(r.expected_sequence or []) or '-'}; "
+            f"agreement {agreement}: {'PASS' if r.passed else 'FAIL'}"
+        )
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(
+            json.dumps(
+                {
+                    "samples": total,
+                    "wall_s": wall,
+                    "speedup": span / wall,
+                    "timeouts": timeouts,
+                    "thrusters": [
+                        r.__dict__ | {"diagnoses": diagnoses[r.thruster_id]} for r in results
+                    ],  # fmt: skip
+                },
+                indent=2,
+            )
+        )
+    return 0 if all(r.passed for r in results) and timeouts == 0 else 1
