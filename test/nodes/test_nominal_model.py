@@ -183,3 +183,39 @@ def test_a_bad_model_stops_the_node_with_the_reason(
     assert out.returncode == 1
     assert "cannot start" in out.stderr
     assert words in out.stderr
+
+
+def _send_some(rig: Rig, t0: float, n: int = 40) -> None:
+    for i in range(n):
+        rig.send(t0 + 0.1 * i, 0.3, 15.0, 1500.0, 1.5)
+        rig.spin(0.005)
+    rig.spin(0.5)
+
+
+def test_a_new_model_is_picked_up_and_a_bad_one_refused(rig: Rig, tmp_path: Path) -> None:
+    from thruster_fdd.core.training import TrainConfig, train_nominal
+
+    traces = [run_scenario("t100", "nominal_15v", signal="multilevel", duration_s=60, seed=5)]
+    card = train_nominal(
+        traces, tmp_path / "new", seed=1, config=TrainConfig(epochs=2, finetune_epochs=1)
+    )
+    reload_cmd = ["thruster-fdd", "reload", "--thrusters", "nm", "--timeout", "20"]
+    ok = subprocess.run(
+        [*reload_cmd, "--nominal", str(tmp_path / "new")], capture_output=True, text=True
+    )
+    assert ok.returncode == 0, ok.stderr
+    n0 = len(rig.residuals)
+    _send_some(rig, 3000.0)
+    assert {m.model_id for m in rig.residuals[n0:]} == {card.model_id}
+
+    shutil.copytree(tmp_path / "new", tmp_path / "bad")
+    (tmp_path / "bad" / "model.pt2").write_bytes(b"truncated")
+    refused = subprocess.run(
+        [*reload_cmd, "--nominal", str(tmp_path / "bad")], capture_output=True, text=True
+    )
+    assert refused.returncode == 1
+    assert "refused" in refused.stderr
+    assert "model.pt2" in refused.stderr
+    n1 = len(rig.residuals)
+    _send_some(rig, 4000.0)
+    assert {m.model_id for m in rig.residuals[n1:]} == {card.model_id}, "the old model keeps going"

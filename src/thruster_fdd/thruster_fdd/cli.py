@@ -469,6 +469,19 @@ def _add_up(sub: argparse._SubParsersAction) -> None:
     )
 
 
+def _add_reload(sub: argparse._SubParsersAction) -> None:
+    from thruster_fdd import reload
+
+    reload.add_arguments(
+        sub.add_parser(
+            "reload",
+            help="load newly exported models into running nodes without a restart",
+            description=reload.DESCRIPTION,
+            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        )
+    )
+
+
 def _add_emulate(sub: argparse._SubParsersAction) -> None:
     from thruster_fdd import launcher
 
@@ -537,6 +550,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_replay,
         _add_up,
         _add_record,
+        _add_reload,
         _add_emulate,
     ):
         add(sub)

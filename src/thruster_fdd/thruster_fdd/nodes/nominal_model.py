@@ -3,6 +3,9 @@
 Subscribes to ``esc/telemetry``, feeds the model at its sample time (``core.residuals``),
 publishes ``Residual`` on ``fdd/residual`` and a status on ``/diagnostics``. A missing, corrupt
 or mismatched model stops the node at start with a message naming the file and what is wrong.
+Setting the ``model_dir`` parameter at runtime loads a newly exported model without a restart;
+a model that fails the checks is refused (the parameter change fails with the reason) and the
+old one keeps running.
 """
 
 from __future__ import annotations
@@ -12,9 +15,10 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import EscTelemetry, Residual
 
@@ -42,8 +46,10 @@ class NominalModelNode(Node):
         p = self.get_parameter
         self._id = p("thruster_id").value
         model_dir = p("model_dir").value or str(default_models_dir() / "nominal")
+        self._max_gap_periods = float(p("max_gap_periods").value)
         self._model = NominalModel.load(model_dir)
-        self._stream = ResidualStream(self._model, float(p("max_gap_periods").value))
+        self._stream = ResidualStream(self._model, self._max_gap_periods)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._pub = self.create_publisher(Residual, "fdd/residual", qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
         self.create_subscription(
@@ -59,6 +65,20 @@ class NominalModelNode(Node):
             f"thruster {self._id}: model {self._model.model_id} from {model_dir} "
             f"({self._model.card.mode}, {1.0 / self._model.sample_time_s:g} Hz)"
         )
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        for param in params:
+            if param.name != "model_dir":
+                continue
+            try:
+                model = NominalModel.load(param.value or str(default_models_dir() / "nominal"))
+            except ValueError as exc:
+                self.get_logger().error(f"refused new model, keeping {self._model.model_id}: {exc}")
+                return SetParametersResult(successful=False, reason=str(exc))
+            self._model = model
+            self._stream = ResidualStream(model, self._max_gap_periods)
+            self.get_logger().info(f"loaded model {model.model_id} from {param.value}")
+        return SetParametersResult(successful=True)
 
     def _on_telemetry(self, msg: EscTelemetry) -> None:
         t_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
