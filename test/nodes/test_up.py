@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from thruster_fdd.core.paths import default_models_dir
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
@@ -31,7 +33,13 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> No
     children = _children_of(proc.pid)
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 0, out
-    assert len(children) == 7, "an emulator, a driver and a command player per thruster; a recorder"
+    stages = sum(
+        (default_models_dir() / folder / "model_card.json").is_file()
+        for folder in ("nominal", "classifier")
+    )
+    # An emulator, a driver and a command player per thruster; a recorder; a container per
+    # exported model stage.
+    assert len(children) == 2 * 3 + 1 + stages
     final = out.split("final:")[1]
     rows = {m[1]: float(m[2]) for m in re.finditer(r"^(t\d)\s+([\d.]+)\s", final, re.M)}
     assert set(rows) == {"t0", "t1"}

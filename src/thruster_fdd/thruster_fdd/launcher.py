@@ -188,7 +188,7 @@ def _node_command(module: str, namespace: str, params: dict[str, object]) -> lis
     return cmd
 
 
-def _commands(plan: ThrusterPlan, rate: float, run_dir: Path, models: Path) -> dict[str, list[str]]:
+def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[str]]:
     ns = f"/thruster/{plan.id}"
     port = plan.port or str(run_dir / f"{plan.id}.tty")
     out: dict[str, list[str]] = {}
@@ -208,10 +208,17 @@ def _commands(plan: ThrusterPlan, rate: float, run_dir: Path, models: Path) -> d
         ns,
         {"thruster_id": plan.id, "port": port, "protocol": plan.protocol, "rate_hz": rate},
     )
+    return out
+
+
+def _stage_commands(ids: list[str], models: Path) -> dict[str, list[str]]:
+    """One container per model stage whose model is exported, hosting every thruster's node."""
+    out = {}
     for stage in MODEL_STAGES:
         if (models / stage.folder / "model_card.json").is_file():
-            params = {"thruster_id": plan.id, "model_dir": models / stage.folder}
-            out[f"{plan.id}-{stage.node}"] = _node_command(stage.node, ns, params)
+            cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", stage.node]
+            cmd += ["--thrusters", *ids, "-p", f"model_dir={models / stage.folder}"]
+            out[stage.node] = cmd
     return out
 
 
@@ -250,14 +257,16 @@ def run_up(args: argparse.Namespace) -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(monitor)
     try:
+        commands = _stage_commands([p.id for p in plans], models)
         for plan in plans:
-            for name, cmd in _commands(plan, rate, run_dir, models).items():
-                log = (run_dir / f"{name}.log").open("wb")
-                # Own process group: a Ctrl-C reaches children only through _stop_children,
-                # so they stop in order after the table's last print.
-                children[name] = subprocess.Popen(
-                    cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
-                )
+            commands |= _commands(plan, rate, run_dir)
+        for name, cmd in commands.items():
+            log = (run_dir / f"{name}.log").open("wb")
+            # Own process group: a Ctrl-C reaches children only through _stop_children,
+            # so they stop in order after the table's last print.
+            children[name] = subprocess.Popen(
+                cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+            )
         if not args.no_record:
             prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
             recorder = _node_command(

@@ -7,6 +7,8 @@ per simulated thruster so the telemetry shows a thruster at work.
 
 from __future__ import annotations
 
+from typing import Any
+
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
@@ -29,8 +31,8 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 class CommandPlayer(Node):
     """Publishes a precomputed command signal at a fixed rate (see module docstring)."""
 
-    def __init__(self) -> None:
-        super().__init__("command_player")
+    def __init__(self, **node_kwargs: Any) -> None:
+        super().__init__("command_player", **node_kwargs)
         for name, default, description in PARAMETERS:
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         p = self.get_parameter

@@ -15,6 +15,7 @@ import contextlib
 import queue
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import rclpy
 import serial
@@ -57,8 +58,8 @@ class _Received:
 class EscDriver(Node):
     """The ESC driver of one thruster (see module docstring)."""
 
-    def __init__(self) -> None:
-        super().__init__("esc_driver")
+    def __init__(self, **node_kwargs: Any) -> None:
+        super().__init__("esc_driver", **node_kwargs)
         for name, default, description in PARAMETERS:
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         p = self.get_parameter

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -39,8 +40,8 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 class NominalModelNode(Node):
     """Publishes the residuals of one thruster (see module docstring)."""
 
-    def __init__(self) -> None:
-        super().__init__("nominal_model")
+    def __init__(self, **node_kwargs: Any) -> None:
+        super().__init__("nominal_model", **node_kwargs)
         for name, default, description in PARAMETERS:
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         p = self.get_parameter

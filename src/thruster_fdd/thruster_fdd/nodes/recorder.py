@@ -12,6 +12,7 @@ import importlib
 import re
 import time
 from importlib.metadata import PackageNotFoundError, version
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -56,8 +57,8 @@ def _message_class(type_name: str) -> type:
 class Recorder(Node):
     """Records all discovered topics (see module docstring)."""
 
-    def __init__(self) -> None:
-        super().__init__("recorder")
+    def __init__(self, **node_kwargs: Any) -> None:
+        super().__init__("recorder", **node_kwargs)
         for name, default, description in PARAMETERS:
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         p = self.get_parameter
