@@ -85,3 +85,16 @@ def test_each_link_problem_is_a_named_warning(field: str, words: str) -> None:
 def test_watchdog_and_bridge_faults_warn() -> None:
     assert "neutral" in link.assess_link(_window(watchdog_neutral=True)).message
     assert "ADC_FAULT" in link.assess_link(_window(bridge_faults="ADC_FAULT")).message
+
+
+def test_frame_stamps_follow_the_bridge_clock_and_increase() -> None:
+    assert link.frame_stamps(10_000_000, []) == []
+    assert link.frame_stamps(10_000_000, [5]) == [10_000_000]
+    stamps = link.frame_stamps(10_000_000, [1_000, 1_020, 1_040])
+    assert stamps == [9_960_000, 9_980_000, 10_000_000]
+    wrapped = link.frame_stamps(10_000_000, [(1 << 32) - 10, 10])
+    assert wrapped == [9_980_000, 10_000_000]
+    no_clock = link.frame_stamps(10_000_000, [None, None, None], period_ns=5)
+    assert no_clock == [9_999_990, 9_999_995, 10_000_000]
+    same = link.frame_stamps(10_000_000, [7, 7])
+    assert same[0] < same[1]

@@ -50,6 +50,43 @@ def pwm_to_command(pwm_us: float) -> float:
     return (pwm_us - NEUTRAL_PWM_US) / PWM_PER_UNIT
 
 
+def frame_stamps(
+    received_ns: int, mcu_us: list[int | None], period_ns: int = 1_000_000
+) -> list[int]:
+    """Host stamps for the frames decoded from one serial read, oldest first.
+
+    The last frame gets the read's host time; earlier ones are placed back by the bridge's own
+    clock (microseconds, u32 wrap) when every frame carries it, else ``period_ns`` apart, so
+    stamps stay strictly increasing.
+
+    Parameters
+    ----------
+    received_ns : int
+        Host time of the read, ns.
+    mcu_us : list of int or None
+        Bridge timestamp of each frame, µs, or None when the protocol has none.
+    period_ns : int
+        Spacing used without bridge timestamps, ns.
+
+    Returns
+    -------
+    list of int
+        One stamp per frame, ns, strictly increasing, the last equal to ``received_ns``.
+    """
+    n = len(mcu_us)
+    if n == 0:
+        return []
+    last = mcu_us[-1]
+    if last is not None and all(t is not None for t in mcu_us):
+        back_us = [((last - t) % (1 << 32)) for t in mcu_us]  # type: ignore[operator]
+        stamps = [received_ns - 1000 * b for b in back_us]
+    else:
+        stamps = [received_ns - period_ns * (n - 1 - i) for i in range(n)]
+    for i in range(n - 2, -1, -1):
+        stamps[i] = min(stamps[i], stamps[i + 1] - 1)
+    return stamps
+
+
 @dataclass(frozen=True)
 class LinkWindow:
     """What the driver saw on its serial link during one diagnostics period.

@@ -196,6 +196,9 @@ def read_trace_mcap(path: str | Path) -> list[Trace]:
         arrays = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
         order = np.argsort(arrays["t"], kind="stable")
         arrays = {k: v[order] for k, v in arrays.items()}
+        # A live log can hold a sample twice (a re-sent frame): keep the first of each stamp.
+        first = np.concatenate(([True], np.diff(arrays["t"]) > 0))
+        arrays = {k: v[first] for k, v in arrays.items()}
         labels = _labels_from_segments(arrays["t"], segments.get(tid, ""))
         uniform = labels is not None and bool((labels == labels[0]).all())
         traces.append(

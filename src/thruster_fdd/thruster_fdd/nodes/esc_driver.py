@@ -55,6 +55,14 @@ class _Received:
     stamp_ns: int
 
 
+def _mcu_time_us(frame: protocol.DecodedFrame | protocol.KissFrame) -> int | None:
+    if isinstance(frame, protocol.DecodedFrame) and isinstance(
+        frame.message, protocol.TelemetryFrame
+    ):
+        return frame.message.timestamp_us
+    return None
+
+
 class EscDriver(Node):
     """The ESC driver of one thruster (see module docstring)."""
 
@@ -141,8 +149,10 @@ class EscDriver(Node):
             stamp = self.get_clock().now().nanoseconds
             frames = decoder.feed(data)
             self._decoder_stats = decoder.stats()
-            for frame in frames:
-                self._inbox.put(_Received(frame, stamp))
+            for frame, frame_stamp in zip(
+                frames, link.frame_stamps(stamp, [_mcu_time_us(f) for f in frames]), strict=True
+            ):
+                self._inbox.put(_Received(frame, frame_stamp))
             if frames:
                 self._wake.trigger()
 
