@@ -31,6 +31,7 @@ SUBCOMMANDS = (
     "replay",
     "up",
     "record",
+    "reload",
     "emulate",
 )
 
@@ -115,16 +116,6 @@ def test_cli_bad_input_is_one_line_and_exit_2() -> None:
     assert "bogus" in out.stderr
 
 
-@pytest.mark.parametrize(("subcommand", "args"), [("diagnose", ["x.csv"]), ("record", [])])
-def test_cli_pending_subcommands_say_so_and_exit_2(subcommand: str, args: list[str]) -> None:
-    out = subprocess.run(
-        ["thruster-fdd", subcommand, *args], capture_output=True, text=True, timeout=60
-    )
-    assert out.returncode == 2
-    assert "not available yet" in out.stderr
-    assert "issue" in out.stderr
-
-
 def test_message_contract() -> None:
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual, ThrusterCommand
 
@@ -142,7 +133,9 @@ def test_message_contract() -> None:
     assert Diagnosis.UNKNOWN == 0
 
 
-@pytest.mark.parametrize("module", ["esc_driver", "command_player"])
+@pytest.mark.parametrize(
+    "module", ["esc_driver", "command_player", "nominal_model", "recorder", "classifier"]
+)
 def test_readme_lists_every_node_parameter_with_its_default(module: str) -> None:
     import importlib
 

@@ -1,23 +1,19 @@
 """The ``thruster-fdd`` command: simulate, train, evaluate, diagnose, discrepancy, replay, up, ...
 
 Every subcommand has ``--help``; exit code 0 on success, 2 on bad input with a one-line reason.
-Subcommands whose capability is not built yet say which issue brings them and exit 2.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from thruster_fdd.core.data import CLASS_NAMES
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
-
-# Subcommands whose capability a later issue brings; running them says so and exits 2.
-PENDING: dict[str, str] = {}
 
 
 class UsageError(Exception):
@@ -493,17 +489,6 @@ def _add_emulate(sub: argparse._SubParsersAction) -> None:
             formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         )
     )
-
-
-def _pending(name: str) -> Callable[[argparse.Namespace], int]:
-    def run(args: argparse.Namespace) -> int:
-        print(
-            f"thruster-fdd {name}: not available yet; it comes with {PENDING[name]}",
-            file=sys.stderr,
-        )
-        return EXIT_BAD_INPUT
-
-    return run
 
 
 def _run_simulate(args: argparse.Namespace) -> int:

@@ -41,6 +41,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 # Samples published ahead of their residual: below the nodes' sensor-data queue depth (10), so
 # none can be dropped, and enough to keep the nodes busy between two answers.
 IN_FLIGHT = 4
+# No new diagnosis for this long ends the replay, s.
+QUIET_S = 2.0
 
 
 def _wait_answer(executor: object, answered: set[int], in_flight: deque[int]) -> int:
@@ -49,6 +51,22 @@ def _wait_answer(executor: object, answered: set[int], in_flight: deque[int]) ->
     deadline = time.monotonic() + 1.0
     while oldest not in answered:
         if time.monotonic() > deadline:
+            return 1
+        executor.spin_once(timeout_sec=0.05)  # type: ignore[attr-defined]
+    return 0
+
+
+# Samples the classifier may fall behind the replay, below its queue depth (500): a window
+# (200 samples) plus slack. Its diagnoses' stamps tell how far it has got.
+MAX_LAG = 300
+
+
+def _wait_classifier(executor: object, diagnosed: dict[str, int], tid: str, index: int) -> int:
+    """Wait until ``tid``'s classifier has decided on sample ``index``; 1 on a time-out."""
+    deadline = time.monotonic() + 10.0
+    while diagnosed[tid] < index:
+        if time.monotonic() > deadline:
+            diagnosed[tid] = index
             return 1
         executor.spin_once(timeout_sec=0.05)  # type: ignore[attr-defined]
     return 0
@@ -73,7 +91,7 @@ def run_replay(args: argparse.Namespace) -> int:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
     from thruster_fdd.core.nominal import read_card
@@ -93,6 +111,7 @@ def run_replay(args: argparse.Namespace) -> int:
     reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     answered: dict[str, set[int]] = {b.thruster_id: set() for b in bags}
     diagnoses: dict[str, list[tuple[float, str]]] = {b.thruster_id: [] for b in bags}
+    diagnosed: dict[str, int] = {b.thruster_id: -1 for b in bags}
     pubs = {}
     for bag in bags:
         tid = bag.thruster_id
@@ -101,33 +120,47 @@ def run_replay(args: argparse.Namespace) -> int:
         def on_residual(msg: Residual, tid: str = tid) -> None:
             answered[tid].add(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
 
-        def on_diagnosis(msg: Diagnosis, tid: str = tid) -> None:
-            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            diagnoses[tid].append((stamp, msg.label))
+        index = {stamp: i for i, stamp in enumerate(bag.stamps_ns)}
 
-        # Residuals are best effort (sensor data); lockstep means one in flight at a time.
-        node.create_subscription(
-            Residual, f"/thruster/{tid}/fdd/residual", on_residual, qos_profile_sensor_data
-        )
+        def on_diagnosis(msg: Diagnosis, tid: str = tid, index: dict[int, int] = index) -> None:
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if stamp_ns in index:  # not the UNKNOWN a silent classifier says on its own clock
+                diagnosed[tid] = max(diagnosed[tid], index[stamp_ns])
+                diagnoses[tid].append((stamp_ns * 1e-9, msg.label))
+
+        node.create_subscription(Residual, f"/thruster/{tid}/fdd/residual", on_residual, reliable)
         node.create_subscription(
             Diagnosis, f"/thruster/{tid}/fdd/diagnosis", on_diagnosis, reliable
         )
+    # Every node must listen before the first sample: telemetry goes to the nominal model,
+    # residuals to the classifier (when there is one) and to this replayer.
+    with_classifier = (models / "classifier" / "model_card.json").is_file()
+
+    def all_listening() -> bool:
+        return all(
+            node.count_subscribers(f"/thruster/{b.thruster_id}/esc/telemetry") >= 1
+            and node.count_subscribers(f"/thruster/{b.thruster_id}/fdd/residual")
+            >= 1 + with_classifier
+            for b in bags
+        )
+
     try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and not all(
-            p.get_subscription_count() >= 1 for p in pubs.values()
-        ):
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not all_listening():
             executor.spin_once(timeout_sec=0.1)
-        if not all(p.get_subscription_count() >= 1 for p in pubs.values()):
+        if not all_listening():
             print("thruster-fdd replay: the model nodes did not start", file=sys.stderr)
             return 1
         start = time.monotonic()
         timeouts = 0
+        stalls = 0
         total = 0
         first_ns = min(b.stamps_ns[0] for b in bags)
         in_flight: deque[int] = deque()
         for bag in bags:
-            for stamp_ns, raw in zip(bag.stamps_ns, bag.raw, strict=True):
+            for k, (stamp_ns, raw) in enumerate(zip(bag.stamps_ns, bag.raw, strict=True)):
+                if with_classifier and k - diagnosed[bag.thruster_id] > MAX_LAG:
+                    stalls += _wait_classifier(executor, diagnosed, bag.thruster_id, k - MAX_LAG)
                 if args.rate:
                     due = start + (stamp_ns - first_ns) * 1e-9 / args.rate
                     while time.monotonic() < due:
@@ -139,10 +172,15 @@ def run_replay(args: argparse.Namespace) -> int:
                 total += 1
             while in_flight:
                 timeouts += _wait_answer(executor, answered[bag.thruster_id], in_flight)
-        settle = time.monotonic() + 1.0
-        while time.monotonic() < settle:
+        # The classifier may still work through its queue: wait until diagnoses stop coming.
+        count, quiet_since = -1, time.monotonic()
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() - quiet_since < QUIET_S and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
-        wall = time.monotonic() - start
+            now_count = sum(len(d) for d in diagnoses.values())
+            if now_count != count:
+                count, quiet_since = now_count, time.monotonic()
+        wall = time.monotonic() - start - QUIET_S
     finally:
         for proc in procs:
             proc.send_signal(2)
@@ -157,7 +195,8 @@ def run_replay(args: argparse.Namespace) -> int:
     ]
     print(
         f"replayed {total} samples ({span:.0f} s of {len(bags)} thruster(s)) in {wall:.1f} s "
-        f"= {span / wall:.0f}x real time; {timeouts} samples got no residual"
+        f"= {span / wall:.0f}x real time; {timeouts} samples got no residual, "
+        f"{stalls} classifier stalls"
     )
     for r in results:
         agreement = "-" if r.agreement is None else f"{r.agreement:.1%}"
@@ -175,6 +214,7 @@ def run_replay(args: argparse.Namespace) -> int:
                     "wall_s": wall,
                     "speedup": span / wall,
                     "timeouts": timeouts,
+                    "classifier_stalls": stalls,
                     "thrusters": [
                         r.__dict__ | {"diagnoses": diagnoses[r.thruster_id]} for r in results
                     ],  # fmt: skip
@@ -182,4 +222,4 @@ def run_replay(args: argparse.Namespace) -> int:
                 indent=2,
             )
         )
-    return 0 if all(r.passed for r in results) and timeouts == 0 else 1
+    return 0 if all(r.passed for r in results) and timeouts == 0 and stalls == 0 else 1

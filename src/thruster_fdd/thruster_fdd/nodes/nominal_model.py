@@ -28,6 +28,9 @@ from thruster_fdd.core.paths import default_models_dir
 from thruster_fdd.core.residuals import ResidualStream
 
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# Reliable with a deep history: a classifier busy with a window decision catches up without
+# losing samples (sensor-data subscribers still match).
+RESIDUAL_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("thruster_id", "t0", "thruster id written into every message"),
@@ -51,7 +54,7 @@ class NominalModelNode(Node):
         self._model = NominalModel.load(model_dir)
         self._stream = ResidualStream(self._model, self._max_gap_periods)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._pub = self.create_publisher(Residual, "fdd/residual", qos_profile_sensor_data)
+        self._pub = self.create_publisher(Residual, "fdd/residual", RESIDUAL_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
         self.create_subscription(
             EscTelemetry, "esc/telemetry", self._on_telemetry, qos_profile_sensor_data
@@ -94,6 +97,8 @@ class NominalModelNode(Node):
             self._last_reason = out.reason
         res = Residual(
             thruster_id=self._id,
+            command=msg.command,
+            voltage_v=msg.voltage_v,
             measured_rpm=out.measured_rpm,
             predicted_rpm=out.predicted_rpm,
             residual_rpm=out.residual_rpm,

@@ -1,0 +1,205 @@
+"""Classifier node: residuals -> the diagnosed condition of one thruster.
+
+Subscribes to ``fdd/residual`` (which carries the model inputs with the residuals), runs
+``core.diagnosis.DiagnosisStream`` and publishes ``Diagnosis`` on ``fdd/diagnosis`` every hop,
+plus a ``/diagnostics`` status: OK for the nominal classes at 15 V, WARN for low supply voltage,
+ERROR for faults, STALE when residuals stop (then the diagnosis becomes UNKNOWN rather than
+repeating an old label). Residuals made by another nominal model than the one the classifier
+was trained with are refused (UNKNOWN, ERROR with both model ids).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from thruster_fdd_msgs.msg import Diagnosis, Residual
+
+from thruster_fdd.core.diagnosis import ClassifierModel, Decision, DiagnosisStream
+from thruster_fdd.core.paths import default_models_dir
+
+RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+UNKNOWN = "unknown"
+CONDITIONS = {
+    "nominal_15v": Diagnosis.NOMINAL_15V,
+    "nominal_13v": Diagnosis.NOMINAL_13V,
+    "nominal_11v8": Diagnosis.NOMINAL_11V8,
+    "broken_blade_1": Diagnosis.BROKEN_BLADE_1,
+    "broken_blade_2": Diagnosis.BROKEN_BLADE_2,
+    "biofouling": Diagnosis.BIOFOULING,
+}
+LOW_VOLTAGE = ("nominal_13v", "nominal_11v8")
+# Reliable with a deep queue, like the residual publisher: a window decision takes longer than
+# one sample period, and a replay runs far faster than real time; the queue absorbs the backlog
+# so no residual of a window is lost.
+INPUT_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+
+PARAMETERS: tuple[tuple[str, object, str], ...] = (
+    ("thruster_id", "t0", "thruster id written into every message"),
+    ("model_dir", "", "exported classifier folder (empty: <models>/classifier)"),
+    ("hop_s", 1.0, "time between two decisions, s"),
+    ("hysteresis", 2, "consecutive equal window decisions needed to change the published label"),
+    ("unknown_threshold", -1.0, "UNKNOWN threshold (negative: the model card's)"),
+    ("stale_after_s", 3.0, "no residual for this long -> STALE and UNKNOWN, s"),
+    ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
+)
+
+
+class ClassifierNode(Node):
+    """Publishes the diagnosis of one thruster (see module docstring)."""
+
+    def __init__(self, **node_kwargs: Any) -> None:
+        super().__init__("classifier", **node_kwargs)
+        for name, default, description in PARAMETERS:
+            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        p = self.get_parameter
+        self._id = p("thruster_id").value
+        model_dir = p("model_dir").value or str(default_models_dir() / "classifier")
+        self._model = ClassifierModel.load(model_dir)
+        threshold = float(p("unknown_threshold").value)
+        self._stream = DiagnosisStream(
+            self._model,
+            hop_s=float(p("hop_s").value),
+            hysteresis=int(p("hysteresis").value),
+            unknown_threshold=threshold if threshold >= 0 else None,
+        )
+        self._stale_after_s = float(p("stale_after_s").value)
+        self._last_input_s: float | None = None
+        self._last: Decision | None = None
+        self._mismatch = ""
+        self._stale = False
+        self._pub = self.create_publisher(Diagnosis, "fdd/diagnosis", RELIABLE_10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+        self.create_subscription(Residual, "fdd/residual", self._on_residual, INPUT_QOS)
+        self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
+        self.get_logger().info(
+            f"thruster {self._id}: classifier {self._model.model_id} from {model_dir} "
+            f"({len(self._model.class_names)} classes, window {self._model.window_s:g} s)"
+        )
+
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _on_residual(self, msg: Residual) -> None:
+        self._last_input_s = self._now_s()
+        self._stale = False
+        if msg.model_id != self._model.nominal_model_id:
+            self._mismatch = (
+                f"residuals from nominal model {msg.model_id}, classifier trained on "
+                f"{self._model.nominal_model_id}"
+            )
+            return
+        self._mismatch = ""
+        decision = self._stream.push(
+            msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9,
+            msg.command,
+            msg.voltage_v,
+            msg.measured_rpm,
+            msg.measured_current_a,
+            msg.residual_rpm,
+            msg.residual_current_a,
+            # The same validity as core.residuals.ResidualSample.valid (offline diagnosis).
+            not msg.flags & (Residual.WARMING_UP | Residual.INPUT_INVALID),
+        )
+        if decision is not None:
+            self._last = decision
+            self._publish(decision, msg.header)
+
+    def _publish(self, decision: Decision, header: object | None = None) -> None:
+        out = Diagnosis(
+            thruster_id=self._id,
+            condition=CONDITIONS.get(decision.label, Diagnosis.UNKNOWN),
+            label=decision.label,
+            class_names=list(decision.probabilities),
+            probabilities=[float(v) for v in decision.probabilities.values()],
+            confidence=float(decision.confidence),
+            window_s=float(decision.window_s),
+            model_id=self._model.model_id,
+        )
+        if header is not None:
+            out.header = header
+        else:
+            out.header.stamp = self.get_clock().now().to_msg()
+        out.header.frame_id = self._id
+        self._pub.publish(out)
+
+    def _publish_status(self) -> None:
+        now = self._now_s()
+        silent = self._last_input_s is None or now - self._last_input_s > self._stale_after_s
+        if silent and not self._stale:
+            # Say UNKNOWN once instead of letting subscribers keep an old label.
+            self._stale = True
+            self._stream.reset()
+            self._last = None
+            uniform = 1.0 / len(self._model.class_names)
+            self._publish(
+                Decision(
+                    t_s=now,
+                    label=UNKNOWN,
+                    raw_label=UNKNOWN,
+                    probabilities=dict.fromkeys(self._model.class_names, uniform),
+                    confidence=0.0,
+                    window_s=0.0,
+                    t_start_s=now,
+                    distance=math.inf,
+                )
+            )
+        label = self._last.label if self._last is not None else UNKNOWN
+        if self._mismatch:
+            level, message = DiagnosticStatus.ERROR, self._mismatch
+        elif silent:
+            level, message = DiagnosticStatus.STALE, "no residuals: diagnosis unknown"
+        elif self._last is None or label == UNKNOWN:
+            level, message = (
+                DiagnosticStatus.WARN,
+                "diagnosis unknown (window filling or unlike any class)",
+            )
+        elif label.startswith("nominal") and label not in LOW_VOLTAGE:
+            level, message = DiagnosticStatus.OK, f"{label} ({self._last.confidence:.2f})"
+        elif label in LOW_VOLTAGE:
+            level, message = DiagnosticStatus.WARN, f"low supply voltage: {label}"
+        else:
+            level, message = DiagnosticStatus.ERROR, f"fault: {label} ({self._last.confidence:.2f})"
+        status = DiagnosticStatus(
+            level=level,
+            name=f"{self.get_namespace().rstrip('/')}/classifier",
+            message=message,
+            hardware_id=self._model.model_id,
+            values=[
+                KeyValue(key="label", value=label),
+                KeyValue(key="model_id", value=self._model.model_id),
+                KeyValue(key="nominal_model_id", value=self._model.nominal_model_id),
+            ],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until Ctrl-C; exit 1 with the reason when the model cannot be used."""
+    rclpy.init(args=args)
+    try:
+        node = ClassifierNode()
+    except ValueError as exc:
+        print(f"classifier: cannot start: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(1)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
