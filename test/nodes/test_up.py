@@ -65,3 +65,27 @@ def test_up_rejects_a_bad_fault_spec() -> None:
     )
     assert out.returncode == 2
     assert "--fault" in out.stderr
+
+
+def test_a_live_fault_recorded_by_up_replays_to_the_same_diagnoses(tmp_path: Path) -> None:
+    models = default_models_dir()
+    if not (models / "classifier" / "model_card.json").is_file():
+        pytest.fail("the committed classifier model is missing")
+    live = subprocess.run(
+        ["thruster-fdd", "up", "--duration", "70", "--signal", "multilevel", "--print-period",
+         "10", "--fault", "t0:broken_blade_2@25", "--record-dir", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )  # fmt: skip
+    assert live.returncode == 0, live.stdout[-3000:]
+    (bag,) = tmp_path.glob("up_*.mcap")
+    replay = subprocess.run(
+        ["thruster-fdd", "replay", str(bag), "--json", str(tmp_path / "r.json")],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    print(replay.stdout)
+    assert "expected (recorded)" in replay.stdout
+    assert replay.returncode == 0, replay.stdout + replay.stderr[-2000:]

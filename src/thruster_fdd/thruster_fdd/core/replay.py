@@ -20,6 +20,7 @@ from thruster_fdd.core.mcap_io import METADATA_NAME
 from thruster_fdd.core.residuals import decimate
 
 _TELEMETRY = "/esc/telemetry"
+_RESIDUAL = "/fdd/residual"
 _DIAGNOSIS = "/fdd/diagnosis"
 
 
@@ -57,7 +58,11 @@ class ThrusterBag:
 
 
 def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
-    """Read the telemetry (decimated to ``period_s``) and diagnoses of every thruster.
+    """Read the telemetry to replay and the diagnoses of every thruster.
+
+    The samples replayed are those the live nominal model used — the stamps of the recorded
+    residuals — when the recording has residuals, so a live run is reproduced sample for
+    sample; otherwise the telemetry decimated to ``period_s``.
 
     Raises
     ------
@@ -67,6 +72,7 @@ def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
     path = Path(path)
     telemetry: dict[str, list[tuple[int, bytes]]] = {}
     recorded: dict[str, list[tuple[float, str]]] = {}
+    used: dict[str, set[int]] = {}
     truth: dict[str, str] = {}
     with path.open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -85,9 +91,11 @@ def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
                 continue
             tid = topic.split("/")[2]
             stamp = decoded.header.stamp
+            ns = stamp.sec * 1_000_000_000 + stamp.nanosec
             if topic.endswith(_TELEMETRY):
-                ns = stamp.sec * 1_000_000_000 + stamp.nanosec
                 telemetry.setdefault(tid, []).append((ns, message.data))
+            elif topic.endswith(_RESIDUAL):
+                used.setdefault(tid, set()).add(ns)
             elif topic.endswith(_DIAGNOSIS):
                 recorded.setdefault(tid, []).append(
                     (stamp.sec + stamp.nanosec * 1e-9, decoded.label)
@@ -98,8 +106,10 @@ def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
     for tid, samples in sorted(telemetry.items()):
         samples.sort(key=lambda s: s[0])
         unique = [s for i, s in enumerate(samples) if i == 0 or s[0] > samples[i - 1][0]]
-        t = np.array([s[0] for s in unique], dtype=float) * 1e-9
-        keep = decimate(t, period_s)
+        if tid in used:
+            keep = np.array([s[0] in used[tid] for s in unique])
+        else:
+            keep = decimate(np.array([s[0] for s in unique], dtype=float) * 1e-9, period_s)
         segments = tuple(
             (float(start), name)
             for start, _, name in (
