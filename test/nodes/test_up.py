@@ -20,6 +20,8 @@ def _children_of(pid: int) -> list[int]:
 
 
 def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
     from thruster_fdd.core.mcap_io import read_trace_mcap
 
     cmd = ["thruster-fdd", "up", "--thrusters", "2", "--duration", "12", "--print-period", "2"]
@@ -52,6 +54,13 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> No
     files = sorted(tmp_path.glob("up_*.mcap"))
     assert files, out
     traces = {t.thruster_id: t for t in read_trace_mcap(files[0])}
+    with files[0].open("rb") as f:
+        records = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    meta = records["thruster_fdd_final"]
+    assert meta["thruster_ids"] == "t0,t1"
+    assert int(meta["messages"]) > 0
+    if stages:
+        assert meta["model_ids"].startswith("nominal=nominal-")
     assert set(traces) == {"t0", "t1"}
     assert len(traces["t0"]) > 4 * 40, "at least 4 s of 50 Hz telemetry recorded"
 

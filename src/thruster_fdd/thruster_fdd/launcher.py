@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import signal
 import subprocess
@@ -269,8 +270,19 @@ def run_up(args: argparse.Namespace) -> int:
             )
         if not args.no_record:
             prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
+            model_ids = ",".join(
+                f"{stage.folder}={json.loads(card.read_text())['model_id']}"
+                for stage in MODEL_STAGES
+                if (card := models / stage.folder / "model_card.json").is_file()
+            )
             recorder = _node_command(
-                "recorder", "/", {"output_dir": args.record_dir.resolve(), "prefix": prefix}
+                "recorder",
+                "/",
+                {
+                    "output_dir": args.record_dir.resolve(),
+                    "prefix": prefix,
+                    "model_ids": f"'{model_ids}'",
+                },
             )
             log = (run_dir / "recorder.log").open("wb")
             children["recorder"] = subprocess.Popen(

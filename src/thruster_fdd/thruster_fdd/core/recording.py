@@ -90,7 +90,8 @@ class McapRecorder:
     policy : RecordingPolicy
         Splitting, chunking, flushing, compression.
     metadata : dict of str to str
-        Written as the ``thruster_fdd`` metadata record at the start of every file.
+        Written as the ``thruster_fdd`` metadata record at the start of every file; the dict is
+        read then, so the caller may add to it while recording.
     prefix : str
         File name prefix (e.g. a start time stamp).
     definition_for : callable
@@ -113,7 +114,7 @@ class McapRecorder:
     ) -> None:
         self.out_dir = Path(out_dir)
         self.policy = policy or RecordingPolicy()
-        self.metadata = dict(metadata or {})
+        self.metadata = metadata if metadata is not None else {}
         self.prefix = prefix
         self._definition_for = definition_for
         self._definitions: dict[str, str] = {}

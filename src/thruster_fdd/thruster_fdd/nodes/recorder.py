@@ -38,6 +38,7 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("flush_period_s", 1.0, "write the chunk in progress at least this often, s"),
     ("compression", "zstd", "chunk compression: zstd, lz4 or none"),
     ("vehicle", "sim-auv", "vehicle name written into the file metadata"),
+    ("model_ids", "", "ids of the models running, written into the metadata (up fills it)"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
 )
 
@@ -77,6 +78,7 @@ class Recorder(Node):
             "vehicle": p("vehicle").value,
             "software_version": _software_version(),
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "model_ids": p("model_ids").value,
         }
         self._recorder: McapRecorder | None = None
         self._error = ""
@@ -209,7 +211,8 @@ class Recorder(Node):
         """Finish the current file so it ends with a complete summary."""
         if self._recorder is not None:
             try:
-                self._recorder.close({"messages": str(self._recorder.messages_written)})
+                final = {**self._metadata, "messages": str(self._recorder.messages_written)}
+                self._recorder.close(final)
             except OSError as exc:
                 self.get_logger().error(f"could not finish {self._recorder.files[-1]}: {exc}")
             self._recorder = None
