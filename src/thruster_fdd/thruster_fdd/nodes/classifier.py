@@ -11,21 +11,23 @@ was trained with are refused (UNKNOWN, ERROR with both model ids).
 from __future__ import annotations
 
 import math
-import sys
 from typing import Any
 
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from thruster_fdd_msgs.msg import Diagnosis, Residual
 
 from thruster_fdd.core.diagnosis import ClassifierModel, Decision, DiagnosisStream
 from thruster_fdd.core.paths import default_models_dir
+from thruster_fdd.nodes.common import (
+    RELIABLE_10,
+    declare_parameters,
+    diagnostics_publisher,
+    publish_status,
+    run,
+)
 
-RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 UNKNOWN = "unknown"
 CONDITIONS = {
     "nominal_15v": Diagnosis.NOMINAL_15V,
@@ -57,8 +59,7 @@ class ClassifierNode(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("classifier", **node_kwargs)
-        for name, default, description in PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        declare_parameters(self, PARAMETERS)
         p = self.get_parameter
         self._id = p("thruster_id").value
         model_dir = p("model_dir").value or str(default_models_dir() / "classifier")
@@ -76,7 +77,7 @@ class ClassifierNode(Node):
         self._mismatch = ""
         self._stale = False
         self._pub = self.create_publisher(Diagnosis, "fdd/diagnosis", RELIABLE_10)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+        self._diag_pub = diagnostics_publisher(self)
         self.create_subscription(Residual, "fdd/residual", self._on_residual, INPUT_QOS)
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
         self.get_logger().info(
@@ -167,38 +168,23 @@ class ClassifierNode(Node):
             level, message = DiagnosticStatus.WARN, f"low supply voltage: {label}"
         else:
             level, message = DiagnosticStatus.ERROR, f"fault: {label} ({self._last.confidence:.2f})"
-        status = DiagnosticStatus(
-            level=level,
-            name=f"{self.get_namespace().rstrip('/')}/classifier",
-            message=message,
-            hardware_id=self._model.model_id,
-            values=[
-                KeyValue(key="label", value=label),
-                KeyValue(key="model_id", value=self._model.model_id),
-                KeyValue(key="nominal_model_id", value=self._model.nominal_model_id),
+        publish_status(
+            self,
+            self._diag_pub,
+            level,
+            message,
+            self._model.model_id,
+            [
+                ("label", label),
+                ("model_id", self._model.model_id),
+                ("nominal_model_id", self._model.nominal_model_id),
             ],
         )
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
 
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C; exit 1 with the reason when the model cannot be used."""
-    rclpy.init(args=args)
-    try:
-        node = ClassifierNode()
-    except ValueError as exc:
-        print(f"classifier: cannot start: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(1)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run(ClassifierNode, args)
 
 
 if __name__ == "__main__":

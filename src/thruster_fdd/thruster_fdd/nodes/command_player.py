@@ -9,16 +9,11 @@ from __future__ import annotations
 
 from typing import Any
 
-import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from thruster_fdd_msgs.msg import ThrusterCommand
 
 from thruster_fdd.core.signals import make_signal
-
-RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+from thruster_fdd.nodes.common import RELIABLE_10, declare_parameters, run
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("signal", "mission", "command signal: steps | sine:F | chirp | multilevel | mission"),
@@ -33,8 +28,7 @@ class CommandPlayer(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("command_player", **node_kwargs)
-        for name, default, description in PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        declare_parameters(self, PARAMETERS)
         p = self.get_parameter
         rate = float(p("rate_hz").value)
         _, self._commands = make_signal(
@@ -53,15 +47,7 @@ class CommandPlayer(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C (the ESC driver's watchdog then brings the thruster to neutral)."""
-    rclpy.init(args=args)
-    node = CommandPlayer()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run(CommandPlayer, args)
 
 
 if __name__ == "__main__":

@@ -17,18 +17,19 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-import rclpy
 import serial
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 from thruster_fdd.core import link, protocol
-
-RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+from thruster_fdd.nodes.common import (
+    RELIABLE_10,
+    declare_parameters,
+    diagnostics_publisher,
+    publish_status,
+    run,
+)
 
 # (name, default, description) of every parameter; the README's table is made from the same.
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
@@ -68,8 +69,7 @@ class EscDriver(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("esc_driver", **node_kwargs)
-        for name, default, description in PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        declare_parameters(self, PARAMETERS)
         p = self.get_parameter
         self._id = p("thruster_id").value
         self._port = p("port").value
@@ -86,7 +86,7 @@ class EscDriver(Node):
         self._diag_period_s = float(p("diagnostics_period_s").value)
 
         self._pub = self.create_publisher(EscTelemetry, "esc/telemetry", qos_profile_sensor_data)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+        self._diag_pub = diagnostics_publisher(self)
         self.create_subscription(ThrusterCommand, "esc/command", self._on_command, RELIABLE_10)
 
         self._inbox: queue.SimpleQueue[_Received] = queue.SimpleQueue()
@@ -325,16 +325,14 @@ class EscDriver(Node):
         )
         self._window_start = (dict(self._counts), stats)
         health = link.assess_link(window)
-        status = DiagnosticStatus(
-            level=bytes([health.level]),
-            name=f"{self.get_namespace().rstrip('/')}/esc_driver",
-            message=health.message,
-            hardware_id=self._port,
-            values=[KeyValue(key=k, value=v) for k, v in health.values],
+        publish_status(
+            self,
+            self._diag_pub,
+            health.level,
+            health.message,
+            self._port,
+            health.values,
         )
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
 
     def shutdown(self) -> None:
         """Send neutral to the bridge, stop the reader thread and close the port."""
@@ -349,16 +347,7 @@ class EscDriver(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C (``esc_driver --ros-args -p port:=/dev/ttyUSB0 ...``)."""
-    rclpy.init(args=args)
-    node = EscDriver()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run(EscDriver, args)
 
 
 if __name__ == "__main__":

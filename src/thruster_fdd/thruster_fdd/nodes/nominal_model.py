@@ -10,14 +10,11 @@ old one keeps running.
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import Any
 
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException
+from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -26,8 +23,13 @@ from thruster_fdd_msgs.msg import EscTelemetry, Residual
 from thruster_fdd.core.nominal import NominalModel
 from thruster_fdd.core.paths import default_models_dir
 from thruster_fdd.core.residuals import ResidualStream
+from thruster_fdd.nodes.common import (
+    declare_parameters,
+    diagnostics_publisher,
+    publish_status,
+    run,
+)
 
-RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # Reliable with a deep history: a classifier busy with a window decision catches up without
 # losing samples (sensor-data subscribers still match).
 RESIDUAL_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
@@ -45,8 +47,7 @@ class NominalModelNode(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("nominal_model", **node_kwargs)
-        for name, default, description in PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        declare_parameters(self, PARAMETERS)
         p = self.get_parameter
         self._id = p("thruster_id").value
         model_dir = p("model_dir").value or str(default_models_dir() / "nominal")
@@ -55,7 +56,7 @@ class NominalModelNode(Node):
         self._stream = ResidualStream(self._model, self._max_gap_periods)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._pub = self.create_publisher(Residual, "fdd/residual", RESIDUAL_QOS)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+        self._diag_pub = diagnostics_publisher(self)
         self.create_subscription(
             EscTelemetry, "esc/telemetry", self._on_telemetry, qos_profile_sensor_data
         )
@@ -127,41 +128,26 @@ class NominalModelNode(Node):
         else:
             level, message = DiagnosticStatus.OK, f"residuals {rate:.1f} Hz"
         self._last_reason = ""
-        status = DiagnosticStatus(
-            level=level,
-            name=f"{self.get_namespace().rstrip('/')}/nominal_model",
-            message=message,
-            hardware_id=self._model.model_id,
-            values=[
-                KeyValue(key="residual_rate_hz", value=f"{rate:.1f}"),
-                KeyValue(key="model_id", value=self._model.model_id),
-                KeyValue(key="resets", value=str(self._stream.resets)),
-                KeyValue(key="invalid_samples", value=str(self._stream.invalid)),
-                KeyValue(key="median_step_us", value=f"{median_us:.0f}"),
-                KeyValue(key="p99_step_us", value=f"{p99_us:.0f}"),
+        publish_status(
+            self,
+            self._diag_pub,
+            level,
+            message,
+            self._model.model_id,
+            [
+                ("residual_rate_hz", f"{rate:.1f}"),
+                ("model_id", self._model.model_id),
+                ("resets", str(self._stream.resets)),
+                ("invalid_samples", str(self._stream.invalid)),
+                ("median_step_us", f"{median_us:.0f}"),
+                ("p99_step_us", f"{p99_us:.0f}"),
             ],
         )
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
 
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C; exit 1 with the reason when the model cannot be used."""
-    rclpy.init(args=args)
-    try:
-        node = NominalModelNode()
-    except ValueError as exc:
-        print(f"nominal_model: cannot start: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(1)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run(NominalModelNode, args)
 
 
 if __name__ == "__main__":

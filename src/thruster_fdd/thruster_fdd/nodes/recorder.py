@@ -14,16 +14,18 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from thruster_fdd.core.recording import McapRecorder, RecordingPolicy
+from thruster_fdd.nodes.common import (
+    declare_parameters,
+    diagnostics_publisher,
+    publish_status,
+    run,
+)
 
-RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
@@ -60,8 +62,7 @@ class Recorder(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("recorder", **node_kwargs)
-        for name, default, description in PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        declare_parameters(self, PARAMETERS)
         p = self.get_parameter
         self._include = re.compile(p("include").value)
         self._exclude = set(p("exclude").value)
@@ -89,7 +90,7 @@ class Recorder(Node):
         self._received = 0
         self._dropped = 0
         self._window = (0, time.monotonic())
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+        self._diag_pub = diagnostics_publisher(self)
         self._open_recorder()
         self.create_timer(float(p("discovery_period_s").value), self._discover)
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_diagnostics)
@@ -188,24 +189,19 @@ class Recorder(Node):
         else:
             level, message = DiagnosticStatus.OK, f"recording {len(self._subscribed)} topics"
         files = [] if rec is None else rec.files
-        status = DiagnosticStatus(
-            level=level,
-            name="/recorder",
-            message=message,
-            hardware_id=str(self._output_dir),
-            values=[
-                KeyValue(key="messages_per_s", value=f"{rate:.1f}"),
-                KeyValue(key="topics", value=str(len(self._subscribed))),
-                KeyValue(
-                    key="messages_written", value=str(0 if rec is None else rec.messages_written)
-                ),
-                KeyValue(key="dropped", value=str(self._dropped)),
-                KeyValue(key="files", value=",".join(str(f) for f in files)),
+        publish_status(
+            self,
+            self._diag_pub,
+            level,
+            message,
+            str(self._output_dir),
+            [
+                ("messages_per_s", f"{rate:.1f}"),
+                ("topics", str(len(self._subscribed))),
+                ("dropped", str(self._dropped)),
+                ("files", ",".join(str(f) for f in files)),
             ],
         )
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
 
     def shutdown(self) -> None:
         """Finish the current file so it ends with a complete summary."""
@@ -220,16 +216,7 @@ class Recorder(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the recorder until Ctrl-C; the last file is finished cleanly."""
-    rclpy.init(args=args)
-    node = Recorder()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run(Recorder, args)
 
 
 if __name__ == "__main__":

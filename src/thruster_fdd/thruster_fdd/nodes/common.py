@@ -1,0 +1,72 @@
+"""What every node of the package does the same way: parameters, status, running."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterable
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def declare_parameters(node: Node, parameters: Iterable[tuple[str, object, str]]) -> None:
+    """Declare ``(name, default, description)`` parameters with their descriptors."""
+    for name, default, description in parameters:
+        node.declare_parameter(name, default, ParameterDescriptor(description=description))
+
+
+def diagnostics_publisher(node: Node) -> Publisher:
+    """The node's publisher on ``/diagnostics`` (reliable, depth 10)."""
+    return node.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_10)
+
+
+def publish_status(
+    node: Node,
+    publisher: Publisher,
+    level: int | bytes,
+    message: str,
+    hardware_id: str,
+    values: Iterable[tuple[str, str]],
+) -> None:
+    """Publish one ``DiagnosticStatus`` named ``<namespace>/<node name>``."""
+    status = DiagnosticStatus(
+        level=level if isinstance(level, bytes) else bytes([level]),
+        name=f"{node.get_namespace().rstrip('/')}/{node.get_name()}",
+        message=message,
+        hardware_id=hardware_id,
+        values=[KeyValue(key=k, value=v) for k, v in values],
+    )
+    array = DiagnosticArray(status=[status])
+    array.header.stamp = node.get_clock().now().to_msg()
+    publisher.publish(array)
+
+
+def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
+    """Run one node until Ctrl-C; exit 1 with the reason when it cannot start (ValueError).
+
+    A node with a ``shutdown()`` method gets it called before it is destroyed.
+    """
+    rclpy.init(args=args)
+    try:
+        node = factory()
+    except ValueError as exc:
+        print(f"{factory.__name__}: cannot start: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(1)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        shutdown = getattr(node, "shutdown", None)
+        if shutdown is not None:
+            shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
