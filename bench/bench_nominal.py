@@ -19,7 +19,7 @@ import torch
 
 from thruster_fdd.core.evaluation import ProtocolConfig, protocol_data
 from thruster_fdd.core.nominal import NominalModel
-from thruster_fdd.core.training import DEFAULT_SPEC, TrainConfig, train_model
+from thruster_fdd.core.training import DEFAULT_SPECS, default_config, train_model
 
 
 def percentiles_us(samples: list[float]) -> tuple[float, float]:
@@ -38,12 +38,11 @@ def main() -> None:
 
     cfg = replace(ProtocolConfig(), train_samples=args.samples)
     train, tests = protocol_data(cfg, 0)
-    start = time.perf_counter()
-    train_model(DEFAULT_SPEC, [train], TrainConfig(mode="parallel"))
-    train_s = time.perf_counter() - start
-    print(
-        f"training ({DEFAULT_SPEC.architecture}, parallel, {args.samples} samples): {train_s:.1f} s"
-    )
+    for mode, spec in DEFAULT_SPECS.items():
+        start = time.perf_counter()
+        train_model(spec, [train], default_config(mode))
+        train_s = time.perf_counter() - start
+        print(f"training ({spec.architecture}, {mode}, {args.samples} samples): {train_s:.1f} s")
 
     model = NominalModel.load(args.model)
     test = tests[0.04]

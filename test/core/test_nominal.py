@@ -28,6 +28,7 @@ from thruster_fdd.core.signals import make_signal
 from thruster_fdd.core.training import (
     TrainConfig,
     lag_windows,
+    predict_sequence,
     resample,
     time_series_folds,
     train_model,
@@ -53,6 +54,15 @@ def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.fixture(scope="module")
+def sp_model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A series-parallel export with the default spec of that mode (both outputs fed back)."""
+    out = tmp_path_factory.mktemp("nominal_sp")
+    cfg = replace(FAST, mode="series-parallel")
+    train_nominal([_trace(), _trace("sine:0.02", seed=2)], out, config=cfg)
+    return out
+
+
 def _copy(src: Path, tmp_path: Path) -> Path:
     dst = tmp_path / "m"
     shutil.copytree(src, dst)
@@ -71,9 +81,13 @@ def test_scaler_round_trip_and_floor() -> None:
     assert again == sc
 
 
+@pytest.mark.parametrize("trained", ["parallel", "series-parallel"])
 @pytest.mark.parametrize("mode", ["series-parallel", "parallel"])
-def test_online_step_equals_batch_predict(model_dir: Path, mode: str) -> None:
-    model = NominalModel.load(model_dir)
+def test_online_step_equals_batch_predict(
+    model_dir: Path, sp_model_dir: Path, trained: str, mode: str
+) -> None:
+    model = NominalModel.load(model_dir if trained == "parallel" else sp_model_dir)
+    assert model.card.mode == trained
     model.mode = mode
     tr = _trace("mission", 40.0, seed=5, cond="biofouling")
     rpm, cur = model.predict(tr.command, tr.voltage, tr.rpm, tr.current)
@@ -90,6 +104,30 @@ def test_online_step_equals_batch_predict(model_dir: Path, mode: str) -> None:
     assert not np.allclose(other[w:], rpm[w:])
     model.reset()
     assert model.step(*(float(v[0]) for v in (tr.command, tr.voltage, tr.rpm, tr.current))) is None
+
+
+def test_series_parallel_export_feeds_back_both_outputs(sp_model_dir: Path) -> None:
+    card = read_card(sp_model_dir)
+    assert card.mode == "series-parallel"
+    assert card.feedback == ("rpm", "current")
+    assert card.training_metrics["validation"]["mode"] == "series-parallel"
+
+
+def test_series_parallel_beats_persistence_on_held_out_data() -> None:
+    # Train one step ahead, test on unseen sines of higher frequency (new noise): the NARX must
+    # beat "next sample = last sample" by a clear margin (MSE < 0.6 x) on both outputs.
+    # (Held-out multilevel steps are harder: a 150-epoch run measured current MSE 0.49 x
+    # persistence, a 100-epoch one 1.13 x, so that case is not asserted; docs/nominal_model.md.)
+    spec = ModelSpec("narx", (32,), input_lags=20, output_lags=2, feedback=("rpm", "current"))
+    train = [resample(_trace(duration=120.0), 0.1), resample(_trace("sine:0.02", 60.0, 2), 0.1)]
+    net, _ = train_model(spec, train, TrainConfig(mode="series-parallel", epochs=100))
+    for signal, seed in (("sine:0.03", 9), ("sine:0.04", 10)):
+        test = resample(_trace(signal, 60.0, seed=seed), 0.1)
+        pred = predict_sequence(net, test, "series-parallel")
+        k = slice(spec.warmup, None)
+        mse_model = np.mean((pred[k] - test.y[k]) ** 2, axis=0)
+        mse_persist = np.mean((test.y[spec.warmup - 1 : -1] - test.y[k]) ** 2, axis=0)
+        assert np.all(mse_model < 0.6 * mse_persist), (signal, mse_model / mse_persist)
 
 
 def test_step_rejects_non_finite(model_dir: Path) -> None:
@@ -224,7 +262,8 @@ def test_cli_train_then_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture[s
     csv = tmp_path / "nominal.csv"
     write_trace_csv(_trace(duration=40.0), csv)
     out = tmp_path / "model"
-    assert cli.main(["train", "nominal", "--data", str(csv), "--out", str(out)]) == 0
+    argv = ["train", "nominal", "--data", str(csv), "--out", str(out)]
+    assert cli.main([*argv, "--epochs", "20", "--finetune-epochs", "3"]) == 0
     assert (out / PROGRAM_FILE).is_file()
     assert (out / CARD_FILE).is_file()
     test_csv = tmp_path / "test.csv"
@@ -242,14 +281,6 @@ def test_cli_train_then_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture[s
     bad = ["evaluate", "nominal", "--model", str(tmp_path / "none"), "--data", str(test_csv)]
     assert cli.main(bad) == 2
     assert "model directory missing" in capsys.readouterr().err
-
-
-def test_cli_classifier_parts_still_pending(capsys: pytest.CaptureFixture[str]) -> None:
-    assert cli.main(["train", "classifier", "--data", "x.csv"]) == 2
-    assert cli.main(["evaluate", "classifier"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("not available yet") == 2
-    assert "issue 5" in err
 
 
 def test_table2_smoke() -> None:

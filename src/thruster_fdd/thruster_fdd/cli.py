@@ -106,6 +106,10 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
         help="NARX configuration the node uses for residuals (and trains for)",
     )
     n.add_argument("--validation-fraction", type=float, default=0.2, metavar="F")
+    n.add_argument("--epochs", type=int, help="one-step epochs (default: the mode's default)")
+    n.add_argument(
+        "--finetune-epochs", type=int, help="free-run epochs, parallel (default: the mode's)"
+    )
     n.set_defaults(func=_run_train_nominal)
     c = what.add_parser(
         "classifier",
@@ -159,13 +163,19 @@ def _run_train_nominal(args: argparse.Namespace) -> int:
 
     if not 0.0 <= args.validation_fraction < 1.0:
         raise UsageError(f"--validation-fraction must be in [0, 1), got {args.validation_fraction}")
+    changes = {
+        k: v for k, v in (("epochs", args.epochs), ("finetune_epochs", args.finetune_epochs))
+        if v is not None
+    }  # fmt: skip
+    if any(v < 0 for v in changes.values()):
+        raise UsageError("--epochs and --finetune-epochs must be >= 0")
     torch.set_num_threads(1)
     traces = read_traces(args.data)
     card = train_nominal(
         traces,
         args.out,
         seed=args.seed,
-        config=default_config(args.mode),
+        config=default_config(args.mode, **changes),
         validation_fraction=args.validation_fraction,
         progress=True,
     )

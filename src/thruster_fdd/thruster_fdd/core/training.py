@@ -45,8 +45,30 @@ from thruster_fdd.core.nominal import (
 DEFAULT_SAMPLE_TIME_S = 0.1
 """10 Hz: the ESC telemetry rate the nominal model runs at (and the Table 2 protocol)."""
 
-DEFAULT_SPEC = ModelSpec("narx", hidden=(32,), input_lags=20, output_lags=2, feedback=("rpm",))
-"""The exported NARX (chosen by ``grid_search``; docs/nominal_model.md)."""
+DEFAULT_SPECS: dict[str, ModelSpec] = {
+    "parallel": ModelSpec(
+        "narx_deadband", hidden=(96,), input_lags=20, output_lags=2, feedback=("rpm",)
+    ),
+    "series-parallel": ModelSpec(
+        "narx_deadband", hidden=(32,), input_lags=20, output_lags=3, feedback=("rpm", "current")
+    ),
+}
+"""The exported NARX per mode (``grid_search`` and the Table 2 runs; docs/nominal_model.md).
+
+Each mode has its own network: the series-parallel model feeds back both measured outputs (one
+step ahead, the measured past current is the best predictor of the next current); the parallel
+model feeds back only its own rpm, since a fed-back predicted current extrapolates worse from
+the training signal in free run."""
+
+DEFAULT_SPEC = DEFAULT_SPECS["parallel"]
+"""The exported NARX of the default (parallel) mode."""
+
+
+def default_spec(mode: str) -> ModelSpec:
+    """The exported NARX hyperparameters for ``mode`` (``DEFAULT_SPECS``)."""
+    if mode not in DEFAULT_SPECS:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {', '.join(DEFAULT_SPECS)}")
+    return DEFAULT_SPECS[mode]
 
 
 @dataclass(frozen=True)
@@ -74,14 +96,24 @@ class TrainConfig:
     """
 
     mode: str = "parallel"
-    epochs: int = 60
-    finetune_epochs: int = 30
+    epochs: int = 150
+    finetune_epochs: int = 60
     horizon: int = 50
     batch_size: int = 64
     lr: float = 3e-3
     chunk: int = 300
     burn_in: int = 20
     seed: int = 0
+
+
+DEFAULT_BATCH_SIZES: dict[str, int] = {"parallel": 64, "series-parallel": 32}
+"""One-step mini-batch size per mode (``grid_search``; docs/nominal_model.md)."""
+
+
+def default_config(mode: str = "parallel", **changes: Any) -> TrainConfig:
+    """The training options of the exported NARX of ``mode`` (batch size per mode)."""
+    default_spec(mode)
+    return replace(TrainConfig(mode=mode, batch_size=DEFAULT_BATCH_SIZES[mode]), **changes)
 
 
 @dataclass(frozen=True)
@@ -419,13 +451,17 @@ def grid_search(
     config: TrainConfig,
     *,
     architecture: str = "narx",
-    hidden: Sequence[tuple[int, ...]] = ((16,), (32,)),
+    hidden: Sequence[tuple[int, ...]] = ((32,), (64,)),
     batch_sizes: Sequence[int] = (32, 64),
-    lookbacks: Sequence[tuple[int, int]] = ((8, 2), (10, 2)),
+    lookbacks: Sequence[tuple[int, int]] = ((10, 2), (20, 2), (20, 3)),
     n_folds: int = 2,
+    feedback: tuple[str, ...] | None = None,
     progress: bool = False,
 ) -> list[GridResult]:
     """Grid search over hidden sizes, batch sizes and (input, output) lookbacks by time-series CV.
+
+    ``feedback`` (NARX) defaults to that of ``DEFAULT_SPECS[config.mode]``; each point is scored
+    by ``cross_validate`` in ``config.mode`` (free run for parallel).
 
     Returns
     -------
@@ -434,8 +470,10 @@ def grid_search(
     """
     results = []
     grid = list(itertools.product(hidden, batch_sizes, lookbacks))
+    is_narx = architecture.startswith("narx")
+    fb = feedback if feedback is not None else default_spec(config.mode).feedback
     for hid, bs, (nu, ny) in tqdm(grid, desc="grid search", disable=not progress):
-        spec = ModelSpec(architecture, tuple(hid), nu, ny if architecture.startswith("narx") else 0)
+        spec = ModelSpec(architecture, tuple(hid), nu, ny if is_narx else 0, fb)
         start = time.perf_counter()
         score = cross_validate(spec, seqs, replace(config, batch_size=bs), n_folds)
         results.append(GridResult(spec, bs, score, time.perf_counter() - start))
@@ -451,7 +489,7 @@ def train_nominal(
     out_dir: str | Path,
     *,
     seed: int = 0,
-    spec: ModelSpec = DEFAULT_SPEC,
+    spec: ModelSpec | None = None,
     config: TrainConfig | None = None,
     sample_time_s: float = DEFAULT_SAMPLE_TIME_S,
     validation_fraction: float = 0.2,
@@ -471,10 +509,11 @@ def train_nominal(
         Export directory.
     seed : int
         Seed of initialisation and shuffling: the same data and seed give the same weights.
-    spec : ModelSpec
-        NARX hyperparameters.
+    spec : ModelSpec or None
+        NARX hyperparameters (default ``default_spec(config.mode)``).
     config : TrainConfig or None
-        Training options (default ``TrainConfig(seed=seed)``).
+        Training options (default ``default_config("parallel")``); ``config.mode`` is the mode
+        the model is trained for and exported with.
     sample_time_s : float
         Model sample time, s.
     validation_fraction : float
@@ -486,9 +525,10 @@ def train_nominal(
     -------
     ModelCard
     """
+    config = replace(config or default_config(), seed=seed)
+    spec = spec if spec is not None else default_spec(config.mode)
     if not spec.is_narx:
         raise ValueError(f"the nominal model is a NARX, got {spec.architecture}")
-    config = replace(config or TrainConfig(), seed=seed)
     seqs = prepare(traces, sample_time_s)
     metrics: dict[str, Any] = {}
     if validation_fraction > 0:
