@@ -390,6 +390,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
                         "delta_bic": c.delta_bic,
                         "gain": c.gain,
                         "held_out_score": c.fit.gap.score,
+                        "own_gain": c.own_gain,
                         "accepted": c.accepted,
                     }
                     for c in rnd.candidates

@@ -1,0 +1,230 @@
+"""Discrepancy workflow: hidden effects are named with their parameters, nulls name nothing."""
+
+from __future__ import annotations
+
+import json
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thruster_fdd.cli import main
+from thruster_fdd.core.data import write_trace_csv
+from thruster_fdd.core.discrepancy import (
+    Measured,
+    noise_free,
+    prepare,
+    run,
+    simulate_model,
+    start_config,
+)
+from thruster_fdd.core.discrepancy_cases import PLAUSIBLE, make_case
+from thruster_fdd.core.physics import simulate
+from thruster_fdd.core.signals import make_signal
+from thruster_fdd.core.simconfig import load_config
+
+DURATION_S = 60.0
+"""CI trace length, s (the study, scripts/discrepancy_study.py, runs longer traces)."""
+
+CI_CASES: dict[str, tuple[tuple[str, ...], int]] = {
+    **{effect: ((effect,), 1) for effect in PLAUSIBLE if effect != "deadband"},
+    "pair": (("dead_time", "current_limit"), 2),
+    "null": ((), 3),
+}
+"""Workflow runs of this file: every effect hidden once (``deadband`` through the CLI, below),
+one pair and one null trace. The study (scripts/discrepancy_study.py) runs many seeds, longer
+traces, more pairs and null traces on every case signal."""
+
+CLI_CASE = (("deadband",), 1)
+
+
+def _run_case(key: str) -> tuple:
+    hidden, seed = CI_CASES[key]
+    case = make_case(hidden, seed, duration_s=DURATION_S)
+    result, _ = run(case.trace, case.start, workers=1, progress=False)
+    return case, result
+
+
+def _run_cli(out: Path) -> tuple:
+    hidden, seed = CLI_CASE
+    case = make_case(hidden, seed, duration_s=DURATION_S)
+    measured = out / "measured.csv"
+    write_trace_csv(case.trace, measured)
+    argv = ["discrepancy", "--measured", str(measured), "--start", "t100", "--drop", "deadband"]
+    argv += ["--drop", "slew_rate_limit", "--out", str(out / "out"), "--quiet", "--workers", "1"]
+    return case, main(argv)
+
+
+def _job(job: tuple) -> tuple:
+    kind, arg = job
+    return _run_cli(arg) if kind == "cli" else _run_case(arg)
+
+
+@pytest.fixture(scope="module")
+def ci_results(tmp_path_factory) -> dict[str, tuple]:
+    """All workflow runs of this file, two at a time (one process per run: the 2 cores)."""
+    jobs = [("cli", tmp_path_factory.mktemp("cli"))] + [("case", key) for key in CI_CASES]
+    with ProcessPoolExecutor(max_workers=2, mp_context=get_context("fork")) as pool:
+        done = list(pool.map(_job, jobs))
+    return {"cli": (jobs[0][1], *done[0]), **dict(zip(CI_CASES, done[1:], strict=True))}
+
+
+def _check_named(case, result) -> None:
+    report = result.report()
+    assert sorted(result.added) == sorted(case.hidden), report
+    assert report["verdict"] == "effects_found"
+    for item in report["missing_effects"]:
+        for name, value in item["params"].items():
+            true = case.hidden[item["name"]][name]
+            assert abs(value / true - 1.0) <= 0.2, (item, true)
+            assert item["uncertainty"][name] > 0.0
+    assert result.final.gap.score <= 0.5 * result.start.gap.score
+
+
+@pytest.mark.parametrize("effect", [e for e in PLAUSIBLE if e != "deadband"])
+def test_hidden_effect_is_named(effect: str, ci_results) -> None:
+    _check_named(*ci_results[effect])
+
+
+def test_hidden_pair_is_named(ci_results) -> None:
+    _check_named(*ci_results["pair"])
+
+
+def test_nothing_missing_names_nothing(ci_results) -> None:
+    _, result = ci_results["null"]
+    assert result.added == ()
+    assert result.report()["verdict"] == "nothing_missing"
+    assert result.report()["missing_effects"] == []
+
+
+def test_start_config_drop() -> None:
+    t100 = load_config("t100")
+    config, warnings = start_config(t100, ["deadband", "slew_rate_limit"])
+    assert config.effect("deadband") is None
+    assert len(warnings) == 1
+    assert "slew_rate_limit" in warnings[0]
+    with pytest.raises(ValueError, match="unknown effect"):
+        start_config(t100, ["warp_drive"])
+
+
+def _short_trace(duration: float = 60.0):
+    config = load_config("t100")
+    t, u = make_signal("multilevel", duration, 10.0, seed=0)
+    return config, simulate(config, t, u, seed=0)
+
+
+def test_prepare_rejects_bad_traces() -> None:
+    config, trace = _short_trace()
+    with pytest.raises(ValueError, match="too short"):
+        prepare(
+            replace(
+                trace,
+                t=trace.t[:50],
+                command=trace.command[:50],
+                voltage=trace.voltage[:50],
+                rpm=trace.rpm[:50],
+                current=trace.current[:50],
+                extra={},
+            ),
+            config,
+        )
+    rpm = trace.rpm.copy()
+    rpm[5] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        prepare(replace(trace, rpm=rpm), config)
+    with pytest.raises(ValueError, match="never turns"):
+        prepare(replace(trace, rpm=np.zeros_like(trace.rpm)), config)
+
+
+def test_prepare_splits_and_estimates_noise() -> None:
+    config, trace = _short_trace()
+    data = prepare(trace, config)
+    assert isinstance(data, Measured)
+    assert not np.any(data.fit & data.held)
+    assert np.all(data.fit | data.held)
+    assert 0.25 <= data.held.mean() <= 0.35
+    # t100 noise: 15 rpm, 0.05 A (plus quantisation)
+    assert 10.0 <= data.sigma["rpm"] <= 25.0
+    assert 0.03 <= data.sigma["current"] <= 0.08
+
+
+def test_model_simulation_equals_simulator() -> None:
+    """Driven by a constant supply, the model run equals the simulator's noise-free run."""
+    config = noise_free(load_config("t100"))
+    t, u = make_signal("multilevel", 60.0, 10.0, seed=1)
+    truth = simulate(config, t, u, voltage=15.0)
+    flat = replace(truth, voltage=np.full_like(truth.voltage, 15.0) - 0.03 * truth.current)
+    data = prepare(flat, config)
+    sim = simulate_model(config, data)
+    np.testing.assert_allclose(sim["rpm"], truth.rpm, atol=1e-6)
+    np.testing.assert_allclose(sim["current"], truth.current, atol=1e-9)
+
+
+def test_cli_end_to_end(ci_results) -> None:
+    """Also the CI's hidden-``deadband`` case: named, within 20 %, gap at least halved."""
+    tmp, case, code = ci_results["cli"]
+    out = tmp / "out"
+    assert code == 0
+    report = json.loads((out / "report.json").read_text())
+    assert set(report) == {"verdict", "missing_effects", "gap_before", "gap_after"}
+    keys = {"rpm_rmse", "current_rmse", "rpm_r2", "current_r2"}
+    assert set(report["gap_before"]) == keys == set(report["gap_after"])
+    assert report["verdict"] == "effects_found"
+    assert [m["name"] for m in report["missing_effects"]] == ["deadband"]
+    assert set(report["missing_effects"][0]) == {"name", "params", "uncertainty"}
+    model = load_config(out / "model.yaml")
+    assert model.effect("deadband") is not None
+    for name in ("report.md", "overlay.png", "residual_vs_command.png", "hysteresis.png"):
+        assert (out / name).stat().st_size > 0
+    assert report["gap_after"]["rpm_rmse"] < report["gap_before"]["rpm_rmse"]
+    width = report["missing_effects"][0]["params"]["width"]
+    assert abs(width / case.hidden["deadband"]["width"] - 1.0) <= 0.2
+    assert report["missing_effects"][0]["uncertainty"]["width"] > 0.0
+    details = json.loads((out / "details.json").read_text())
+    assert details["gap_score_after"] <= 0.5 * details["gap_score_before"], details
+
+
+def test_cli_bad_input(tmp_path, capsys) -> None:
+    out = str(tmp_path / "o")
+    assert (
+        main(
+            [
+                "discrepancy",
+                "--measured",
+                str(tmp_path / "nope.csv"),
+                "--start",
+                "t100",
+                "--out",
+                out,
+            ]
+        )
+        == 2
+    )
+    _, trace = _short_trace()
+    good = tmp_path / "m.csv"
+    write_trace_csv(trace, good)
+    assert (
+        main(
+            [
+                "discrepancy",
+                "--measured",
+                str(good),
+                "--start",
+                "t100",
+                "--drop",
+                "flux_capacitor",
+                "--out",
+                out,
+            ]
+        )
+        == 2
+    )
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,command,voltage\n0,0,15\n0.1,0.2,15\n")
+    assert main(["discrepancy", "--measured", str(bad), "--start", "t100", "--out", out]) == 2
+    assert main(["discrepancy", "--measured", str(good), "--start", "t999", "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert all(len(line) > 0 for line in err.strip().splitlines())
