@@ -247,6 +247,41 @@ def test_hysteresis_gap_and_invalid_samples(
         dg.DiagnosisStream(classifier, hysteresis=0)
 
 
+def test_idle_windows_give_no_evidence_and_do_not_flip_the_label(
+    loaded: tuple[NominalModel, dg.ClassifierModel],
+) -> None:
+    _, classifier = loaded
+    n = classifier.window_samples
+    driven = (0.6, 15.0, 2600.0, 3.0, 0.0, 0.0)
+    idle = (0.0, 15.0, 0.0, 0.05, 0.0, 0.0)  # no turning sample: active_fraction 0
+    rows = [driven] * (n + 30) + [idle] * (3 * n)
+
+    def run(**kw: float) -> list[dg.Decision]:
+        stream = dg.DiagnosisStream(classifier, hop_s=0.1, **kw)
+        out = [stream.push(0.1 * k, *row, True) for k, row in enumerate(rows)]
+        return [d for d in out if d is not None]
+
+    decisions = run()
+    assert decisions[25].label == decisions[25].raw_label != dg.UNKNOWN  # driven: own answer
+    # once fewer than 30 % of a window's samples turn (15 of 50), the window weighs nothing:
+    # from then on (hysteresis 2: one window later) the label stays put
+    quiet = 31 + n - 15
+    assert len(decisions) - quiet > 100
+    assert len({d.label for d in decisions[quiet + 1 :]}) == 1
+    # without accumulation the label follows the raw labels (plain hysteresis)
+    plain = run(evidence_tau_s=0.0)
+    raws = [d.raw_label for d in plain]
+    label = dg.UNKNOWN
+    for k, d in enumerate(plain):
+        if k >= 1 and raws[k] == raws[k - 1]:
+            label = raws[k]
+        assert d.label == label
+    with pytest.raises(ValueError, match="evidence_tau_s"):
+        dg.DiagnosisStream(classifier, evidence_tau_s=-1.0)
+    with pytest.raises(ValueError, match="excitation_range"):
+        dg.DiagnosisStream(classifier, excitation_range=(0.6, 0.3))
+
+
 def test_healthy_and_fouled_are_told_apart_on_an_unseen_unit(
     loaded: tuple[NominalModel, dg.ClassifierModel],
 ) -> None:

@@ -60,6 +60,16 @@ Z_CLIP = 10.0
 STD_FLOOR = 0.05
 """Floor of a class's per-feature std in standardised units (the distance's denominator)."""
 
+EVIDENCE_TAU_S = 5.0
+"""Time constant of the decision layer's evidence accumulation, s of *excited* operation: each
+window's log-probabilities enter an exponentially weighted mean that forgets at this rate only
+while the thruster turns (tuned on validation units 400-405, docs/diagnosis.md)."""
+
+EXCITATION_RANGE: tuple[float, float] = (0.3, 0.6)
+"""Share of turning samples (feature ``active_fraction``) over which a window's evidence weight
+ramps from 0 to 1: a window that mostly idles gives no evidence, so the label does not flip on
+it (idle and station keeping confuse nominal and one broken blade)."""
+
 
 # ---------------------------------------------------------------------------------------------
 # Network
@@ -526,10 +536,26 @@ class DiagnosisStream:
     hop_s : float
         Time between decisions once a window is full, s (rounded to whole samples).
     hysteresis : int
-        The reported label changes only when this many consecutive raw labels agree on a new
-        one (``"unknown"`` included); it starts as ``"unknown"``.
+        The reported label changes only when this many consecutive evidence labels agree on a
+        new one (``"unknown"`` included); it starts as ``"unknown"``.
     unknown_threshold : float or None
         Top probability under which a window is unknown; None uses the card's.
+    evidence_tau_s : float
+        Time constant of the evidence accumulation, s of excited operation
+        (``EVIDENCE_TAU_S``); 0 turns accumulation off (the label follows the raw labels).
+    excitation_range : (float, float)
+        ``active_fraction`` below which a window weighs 0 and above which it weighs 1
+        (``EXCITATION_RANGE``).
+
+    Decision layer: each window's calibrated log-probabilities ``log p`` and its "unlike every
+    class" flag enter exponentially weighted means with weight ``w`` (0..1, from the window's
+    share of turning samples); the forgetting factor is ``exp(-w hop / evidence_tau_s)``, so a
+    window without excitation neither adds evidence nor forgets it. The evidence label is the
+    argmax of ``softmax(mean log p)`` (a weighted geometric mean of recent windows), or
+    ``"unknown"`` when the weighted share of unlike windows exceeds 0.5 or its top probability
+    is under ``unknown_threshold``; before any excited window it is the raw label. Hysteresis
+    then acts on the evidence labels. ``raw_label``, ``probabilities`` and ``confidence`` of a
+    Decision stay the window's own.
     """
 
     def __init__(
@@ -539,9 +565,16 @@ class DiagnosisStream:
         hop_s: float = 1.0,
         hysteresis: int = 2,
         unknown_threshold: float | None = None,
+        evidence_tau_s: float = EVIDENCE_TAU_S,
+        excitation_range: tuple[float, float] = EXCITATION_RANGE,
     ) -> None:
         if not (math.isfinite(hop_s) and hop_s > 0):
             raise ValueError(f"hop_s must be > 0, got {hop_s}")
+        if not (math.isfinite(evidence_tau_s) and evidence_tau_s >= 0):
+            raise ValueError(f"evidence_tau_s must be >= 0, got {evidence_tau_s}")
+        lo, hi = (float(v) for v in excitation_range)
+        if not (0.0 <= lo < hi <= 1.0):
+            raise ValueError(f"excitation_range must satisfy 0 <= lo < hi <= 1, got {lo}, {hi}")
         if hysteresis < 1:
             raise ValueError(f"hysteresis must be >= 1, got {hysteresis}")
         if unknown_threshold is not None and not 0.0 <= unknown_threshold <= 1.0:
@@ -552,16 +585,27 @@ class DiagnosisStream:
         self.unknown_threshold = (
             model.probability_threshold if unknown_threshold is None else unknown_threshold
         )
+        self.evidence_tau_s = float(evidence_tau_s)
+        self.excitation_range = (lo, hi)
         hop_samples = max(1, round(hop_s / model.sample_time_s))
+        self._hop_time_s = hop_samples * model.sample_time_s
         self._windows = WindowFeaturizer(model.window_samples, hop_samples, model.sample_time_s)
         self._recent: deque[str] = deque(maxlen=hysteresis)
         self._label = UNKNOWN
+        self._active_index = FEATURE_NAMES.index("active_fraction")
+        self._log_p = np.zeros(len(model.class_names))
+        self._weight = 0.0
+        self._unlike = 0.0
 
     def reset(self) -> None:
-        """Forget the window and the label history (the label returns to ``"unknown"``)."""
+        """Forget the window, the evidence and the label history (the label returns to
+        ``"unknown"``)."""
         self._windows.reset()
         self._recent.clear()
         self._label = UNKNOWN
+        self._log_p = np.zeros(len(self.model.class_names))
+        self._weight = 0.0
+        self._unlike = 0.0
 
     def push(
         self,
@@ -613,9 +657,10 @@ class DiagnosisStream:
             if unlike or confidence < self.unknown_threshold
             else self.model.class_names[best]
         )
-        self._recent.append(raw)
+        evidence = self._evidence_label(features, p, unlike, raw)
+        self._recent.append(evidence)
         if len(self._recent) == self.hysteresis and len(set(self._recent)) == 1:
-            self._label = raw
+            self._label = evidence
         return Decision(
             t_s=t_end,
             label=self._label,
@@ -626,6 +671,28 @@ class DiagnosisStream:
             t_start_s=t_start,
             distance=distance,
         )
+
+    def _evidence_label(self, features: np.ndarray, p: np.ndarray, unlike: bool, raw: str) -> str:
+        """Add one window to the accumulated evidence; the label it supports (class docstring)."""
+        if self.evidence_tau_s == 0:
+            return raw
+        lo, hi = self.excitation_range
+        active = float(features[self._active_index])
+        w = min(max((active - lo) / (hi - lo), 0.0), 1.0) if math.isfinite(active) else 0.0
+        if w > 0:
+            keep = math.exp(-w * self._hop_time_s / self.evidence_tau_s)
+            self._log_p = keep * self._log_p + w * np.log(np.maximum(p, 1e-9))
+            self._weight = keep * self._weight + w
+            self._unlike = keep * self._unlike + w * float(unlike)
+        if self._weight <= 0:
+            return raw
+        mean = self._log_p / self._weight
+        q = np.exp(mean - mean.max())
+        q /= q.sum()
+        best = int(np.argmax(q))
+        if self._unlike / self._weight > 0.5 or q[best] < self.unknown_threshold:
+            return UNKNOWN
+        return self.model.class_names[best]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -654,15 +721,21 @@ def trace_decisions(
     hop_s: float = 1.0,
     hysteresis: int = 2,
     unknown_threshold: float | None = None,
+    evidence_tau_s: float = EVIDENCE_TAU_S,
 ) -> list[Decision]:
     """Run a trace sample by sample through ResidualStream and DiagnosisStream.
 
     Both start from a reset state, exactly as the nodes do on a fresh thruster stream.
+    ``evidence_tau_s`` = 0 gives the decision layer without evidence accumulation.
     """
     residuals = ResidualStream(nominal)
     residuals.reset()
     stream = DiagnosisStream(
-        classifier, hop_s=hop_s, hysteresis=hysteresis, unknown_threshold=unknown_threshold
+        classifier,
+        hop_s=hop_s,
+        hysteresis=hysteresis,
+        unknown_threshold=unknown_threshold,
+        evidence_tau_s=evidence_tau_s,
     )
     decisions = []
     columns = (trace.t, trace.command, trace.voltage, trace.rpm, trace.current)

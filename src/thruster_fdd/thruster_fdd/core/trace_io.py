@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -31,6 +32,37 @@ def write_trace(trace: Trace, path: str | Path) -> None:
         raise ValueError(f"{path}: output must end in .csv or .mcap")
 
 
+def trace_files(sources: Iterable[str | Path]) -> list[Path]:
+    """The trace files that ``sources`` name: files as given, folders' CSV/MCAP recursively.
+
+    Raises
+    ------
+    ValueError
+        If a source does not exist or a folder holds no trace.
+    """
+    files: list[Path] = []
+    for source in sources:
+        path = Path(source)
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*") if p.suffix in SUFFIXES)
+            if not found:
+                raise ValueError(f"{path}: folder holds no .csv or .mcap trace")
+            files.extend(found)
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise ValueError(f"{path}: no such file or folder")
+    return files
+
+
+def file_digests(sources: Iterable[str | Path]) -> list[dict[str, str]]:
+    """Name and SHA-256 of every trace file of ``sources`` (what a model card records)."""
+    return [
+        {"file": str(path), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+        for path in trace_files(sources)
+    ]
+
+
 def read_traces(sources: Iterable[str | Path]) -> list[Trace]:
     """Read every trace in the given files and folders (CSV and MCAP, folders recursively).
 
@@ -50,23 +82,13 @@ def read_traces(sources: Iterable[str | Path]) -> list[Trace]:
         If a source does not exist, has another suffix, or a folder holds no trace.
     """
     traces: list[Trace] = []
-    for source in sources:
-        path = Path(source)
-        if path.is_dir():
-            files = sorted(p for p in path.rglob("*") if p.suffix in SUFFIXES)
-            if not files:
-                raise ValueError(f"{path}: folder holds no .csv or .mcap trace")
-        elif path.is_file():
-            files = [path]
+    for file in trace_files(sources):
+        if file.suffix == ".csv":
+            traces.append(read_trace_csv(file))
+        elif file.suffix == ".mcap":
+            traces.extend(read_trace_mcap(file))
         else:
-            raise ValueError(f"{path}: no such file or folder")
-        for file in files:
-            if file.suffix == ".csv":
-                traces.append(read_trace_csv(file))
-            elif file.suffix == ".mcap":
-                traces.extend(read_trace_mcap(file))
-            else:
-                raise ValueError(f"{file}: a trace must be a .csv or .mcap file")
+            raise ValueError(f"{file}: a trace must be a .csv or .mcap file")
     return traces
 
 
