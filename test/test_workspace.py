@@ -143,3 +143,29 @@ def test_readme_lists_every_node_parameter_with_its_default(module: str) -> None
     node = importlib.import_module(f"thruster_fdd.nodes.{module}")
     for name, default, _ in node.PARAMETERS:
         assert f"| `{name}` | `{default}` |" in readme, f"{module}.{name} missing from README"
+
+
+def test_train_nominal_records_its_recordings(tmp_path: Path) -> None:
+    import hashlib
+    import json
+
+    from thruster_fdd.core.mcap_io import write_trace_mcap
+    from thruster_fdd.core.nominal import NominalModel
+    from thruster_fdd.core.scenario import run_scenario
+
+    logs = tmp_path / "logs"
+    trace = run_scenario("t100", "nominal_15v", signal="multilevel", duration_s=60, seed=3)
+    write_trace_mcap([trace], logs / "run1.mcap")
+    out = subprocess.run(
+        ["thruster-fdd", "train", "nominal", "--data", str(logs), "--out", str(tmp_path / "m"),
+         "--epochs", "1", "--finetune-epochs", "0"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    card = json.loads((tmp_path / "m" / "model_card.json").read_text())
+    (entry,) = card["extra"]["training_files"]
+    assert entry["file"].endswith("run1.mcap")
+    assert entry["sha256"] == hashlib.sha256((logs / "run1.mcap").read_bytes()).hexdigest()
+    assert NominalModel.load(tmp_path / "m").model_id == card["model_id"]

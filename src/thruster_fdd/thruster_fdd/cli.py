@@ -132,6 +132,18 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(func=_run_train_classifier)
 
 
+def _record_training_files(out_dir: Path, sources: list[Path]) -> None:
+    """Add each training file's name and SHA-256 to the exported card's ``extra``."""
+    import json
+
+    from thruster_fdd.core.trace_io import file_digests
+
+    card_path = out_dir / "model_card.json"
+    card = json.loads(card_path.read_text())
+    card.setdefault("extra", {})["training_files"] = file_digests(sources)
+    card_path.write_text(json.dumps(card, indent=2) + "\n")
+
+
 def _run_train_classifier(args: argparse.Namespace) -> int:
     import torch
 
@@ -146,6 +158,7 @@ def _run_train_classifier(args: argparse.Namespace) -> int:
     card = train_classifier(
         traces, args.nominal, args.out, seed=args.seed, config=config, progress=True
     )
+    _record_training_files(args.out, args.data)
     m = card.training_metrics["heldout"]
     print(
         f"exported {card.model_id} to {args.out}: {len(traces)} trace(s), nominal model "
@@ -179,6 +192,7 @@ def _run_train_nominal(args: argparse.Namespace) -> int:
         validation_fraction=args.validation_fraction,
         progress=True,
     )
+    _record_training_files(args.out, args.data)
     m = card.training_metrics.get("validation", card.training_metrics["train"])
     print(
         f"exported {card.model_id} ({card.mode}) to {args.out}: {len(traces)} trace(s); "
