@@ -217,7 +217,7 @@ def run_replay(args: argparse.Namespace) -> int:
                     "classifier_stalls": stalls,
                     "thrusters": [
                         r.__dict__ | {"diagnoses": diagnoses[r.thruster_id]} for r in results
-                    ],  # fmt: skip
+                    ],
                 },
                 indent=2,
             )
