@@ -41,6 +41,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 # Samples published ahead of their residual: below the nodes' sensor-data queue depth (10), so
 # none can be dropped, and enough to keep the nodes busy between two answers.
 IN_FLIGHT = 4
+# A residual not back after this long counts as lost, s (generous: a loaded CI machine).
+ANSWER_TIMEOUT_S = 5.0
 # No new diagnosis for this long ends the replay, s.
 QUIET_S = 2.0
 
@@ -48,7 +50,7 @@ QUIET_S = 2.0
 def _wait_answer(executor: object, answered: set[int], in_flight: deque[int]) -> int:
     """Wait for the oldest sample in flight to be answered; returns 1 on a time-out, else 0."""
     oldest = in_flight.popleft()
-    deadline = time.monotonic() + 1.0
+    deadline = time.monotonic() + ANSWER_TIMEOUT_S
     while oldest not in answered:
         if time.monotonic() > deadline:
             return 1
@@ -66,7 +68,6 @@ def _wait_classifier(executor: object, diagnosed: dict[str, int], tid: str, inde
     deadline = time.monotonic() + 10.0
     while diagnosed[tid] < index:
         if time.monotonic() > deadline:
-            diagnosed[tid] = index
             return 1
         executor.spin_once(timeout_sec=0.05)  # type: ignore[attr-defined]
     return 0
@@ -161,6 +162,13 @@ def run_replay(args: argparse.Namespace) -> int:
             for k, (stamp_ns, raw) in enumerate(zip(bag.stamps_ns, bag.raw, strict=True)):
                 if with_classifier and k - diagnosed[bag.thruster_id] > MAX_LAG:
                     stalls += _wait_classifier(executor, diagnosed, bag.thruster_id, k - MAX_LAG)
+                    if stalls:
+                        print(
+                            f"thruster-fdd replay: the classifier of {bag.thruster_id} stopped "
+                            f"deciding (no decision up to sample {k - MAX_LAG}); aborting",
+                            file=sys.stderr,
+                        )
+                        break
                 if args.rate:
                     due = start + (stamp_ns - first_ns) * 1e-9 / args.rate
                     while time.monotonic() < due:
@@ -172,6 +180,8 @@ def run_replay(args: argparse.Namespace) -> int:
                 total += 1
             while in_flight:
                 timeouts += _wait_answer(executor, answered[bag.thruster_id], in_flight)
+            if stalls:
+                break
         # The classifier may still work through its queue: wait until diagnoses stop coming.
         count, quiet_since = -1, time.monotonic()
         deadline = time.monotonic() + 120.0

@@ -15,7 +15,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from thruster_fdd_msgs.msg import Diagnosis, Residual
 
 from thruster_fdd.core.diagnosis import ClassifierModel, Decision, DiagnosisStream
@@ -38,10 +38,14 @@ CONDITIONS = {
     "biofouling": Diagnosis.BIOFOULING,
 }
 LOW_VOLTAGE = ("nominal_13v", "nominal_11v8")
-# Reliable with a deep queue, like the residual publisher: a window decision takes longer than
-# one sample period, and a replay runs far faster than real time; the queue absorbs the backlog
-# so no residual of a window is lost.
-INPUT_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+# Reliable, transient-local and deep, like the residual publisher: a window decision takes
+# longer than one sample period and a replay runs far faster than real time, so the queue
+# absorbs the backlog; a classifier that matches the publisher late still gets the history.
+INPUT_QOS = QoSProfile(
+    depth=500,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("thruster_id", "t0", "thruster id written into every message"),

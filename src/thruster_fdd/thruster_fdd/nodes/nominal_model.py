@@ -17,7 +17,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import EscTelemetry, Residual
 
 from thruster_fdd.core.nominal import NominalModel
@@ -30,9 +30,14 @@ from thruster_fdd.nodes.common import (
     run,
 )
 
-# Reliable with a deep history: a classifier busy with a window decision catches up without
-# losing samples (sensor-data subscribers still match).
-RESIDUAL_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+# Reliable and transient-local with a deep history: a classifier busy with a window decision
+# catches up without losing samples, and one that joins late still gets the last 50 s of
+# residuals (volatile and sensor-data subscribers still match).
+RESIDUAL_QOS = QoSProfile(
+    depth=500,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("thruster_id", "t0", "thruster id written into every message"),
