@@ -75,7 +75,7 @@ def rig() -> Iterator[Rig]:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, Residual
 
     proc = subprocess.Popen(
@@ -98,7 +98,13 @@ def rig() -> Iterator[Rig]:
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     reliable = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
-    r = Rig(executor, node.create_publisher(Residual, f"{NS}/fdd/residual", reliable), [], [])
+    # fdd/residual is transient-local (README): the classifier only matches such publishers.
+    residual_qos = QoSProfile(
+        depth=500,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    r = Rig(executor, node.create_publisher(Residual, f"{NS}/fdd/residual", residual_qos), [], [])
     node.create_subscription(Diagnosis, f"{NS}/fdd/diagnosis", r.diagnoses.append, reliable)
     node.create_subscription(
         DiagnosticArray,
@@ -106,11 +112,11 @@ def rig() -> Iterator[Rig]:
         lambda m: r.statuses.extend(s for s in m.status if s.name == f"{NS}/classifier"),
         reliable,
     )
-    deadline = time.monotonic() + 30
-    while r.pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-        r.spin(0.1)
-    assert r.pub.get_subscription_count() > 0, "the classifier never subscribed"
     try:
+        deadline = time.monotonic() + 30
+        while r.pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            r.spin(0.1)
+        assert r.pub.get_subscription_count() > 0, "the classifier never subscribed"
         yield r
     finally:
         proc.send_signal(2)

@@ -89,11 +89,11 @@ def rig() -> Iterator[Rig]:
         QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
     )
     r = Rig(node, executor, pub, residuals, proc)
-    deadline = time.monotonic() + 20
-    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-        r.spin(0.1)
-    assert pub.get_subscription_count() > 0, "the node never subscribed"
     try:
+        deadline = time.monotonic() + 20
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            r.spin(0.1)
+        assert pub.get_subscription_count() > 0, "the node never subscribed"
         yield r
     finally:
         proc.send_signal(2)
