@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 from thruster_fdd.core.data import CLASS_NAMES, Trace
 from thruster_fdd.core.features import FEATURE_NAMES, WINDOW_SIGNALS, window_features
-from thruster_fdd.core.nominal import NominalModel, code_version
+from thruster_fdd.core.nominal import NominalModel, code_version, load_card_json
 from thruster_fdd.core.residuals import ResidualStream
 
 KIND = "classifier"
@@ -223,23 +223,7 @@ def read_classifier_card(model_dir: str | Path) -> ClassifierCard:
         field, another kind, class names or features other than DESIGN.md's / this code's,
         inconsistent sizes.
     """
-    path = Path(model_dir) / CARD_FILE
-    if not path.is_file():
-        raise ValueError(f"{path}: model card missing")
-    try:
-        raw = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(raw, dict):
-        raise ValueError(f"{path}: expected a JSON object, got {type(raw).__name__}")
-    if raw.get("kind") != KIND:
-        raise ValueError(f"{path}: kind is {raw.get('kind')!r}, expected {KIND!r}")
-    missing = [k for k in _CARD_TYPES if k not in raw]
-    if missing:
-        raise ValueError(f"{path}: missing field(s) {', '.join(missing)}")
-    for key, typ in _CARD_TYPES.items():
-        if not isinstance(raw[key], typ) or isinstance(raw[key], bool):
-            raise ValueError(f"{path}: field {key!r} has type {type(raw[key]).__name__}")
+    path, raw = load_card_json(model_dir, _CARD_TYPES, KIND)
     expected: dict[str, tuple[str, ...]] = {
         "class_names": CLASS_NAMES,
         "outputs": CLASS_NAMES,

@@ -405,13 +405,34 @@ _CARD_TYPES: dict[str, type | tuple[type, ...]] = {
 }
 
 
-def read_card(model_dir: str | Path) -> ModelCard:
-    """Read and validate ``model_dir/model_card.json``.
+def load_card_json(
+    model_dir: str | Path,
+    card_types: dict[str, type | tuple[type, ...]],
+    kind: str | None = None,
+) -> tuple[Path, dict[str, Any]]:
+    """Read ``model_dir/model_card.json`` and check it has every field of ``card_types``.
+
+    Shared by the nominal and the classifier card readers, which add their own checks.
+
+    Parameters
+    ----------
+    model_dir : str or Path
+        Exported model folder.
+    card_types : dict of str to type
+        Required fields and their JSON types (bool is never accepted for a number).
+    kind : str or None
+        When given, the card's ``kind`` must equal it (checked before the fields).
+
+    Returns
+    -------
+    (Path, dict)
+        The card's path and its content.
 
     Raises
     ------
     ValueError
-        Naming the file and what is wrong: missing, not JSON, a missing or mistyped field.
+        Naming the file and what is wrong: missing, not JSON, not an object, another kind, a
+        missing or mistyped field.
     """
     path = Path(model_dir) / CARD_FILE
     if not path.is_file():
@@ -422,12 +443,26 @@ def read_card(model_dir: str | Path) -> ModelCard:
         raise ValueError(f"{path}: not valid JSON ({exc})") from exc
     if not isinstance(raw, dict):
         raise ValueError(f"{path}: expected a JSON object, got {type(raw).__name__}")
-    missing = [k for k in _CARD_TYPES if k not in raw]
+    if kind is not None and raw.get("kind") != kind:
+        raise ValueError(f"{path}: kind is {raw.get('kind')!r}, expected {kind!r}")
+    missing = [k for k in card_types if k not in raw]
     if missing:
         raise ValueError(f"{path}: missing field(s) {', '.join(missing)}")
-    for key, typ in _CARD_TYPES.items():
+    for key, typ in card_types.items():
         if not isinstance(raw[key], typ) or isinstance(raw[key], bool):
             raise ValueError(f"{path}: field {key!r} has type {type(raw[key]).__name__}")
+    return path, raw
+
+
+def read_card(model_dir: str | Path) -> ModelCard:
+    """Read and validate ``model_dir/model_card.json``.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and what is wrong: missing, not JSON, a missing or mistyped field.
+    """
+    path, raw = load_card_json(model_dir, _CARD_TYPES)
     unknown = sorted(set(raw) - set(_CARD_TYPES) - {"extra"})
     if unknown:
         raise ValueError(f"{path}: unknown field(s) {', '.join(unknown)}")
