@@ -258,16 +258,8 @@ def run_up(args: argparse.Namespace) -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(monitor)
     try:
-        commands = _stage_commands([p.id for p in plans], models)
-        for plan in plans:
-            commands |= _commands(plan, rate, run_dir)
-        for name, cmd in commands.items():
-            log = (run_dir / f"{name}.log").open("wb")
-            # Own process group: a Ctrl-C reaches children only through _stop_children,
-            # so they stop in order after the table's last print.
-            children[name] = subprocess.Popen(
-                cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
-            )
+        # The recorder starts first, so it is listening when the first telemetry comes.
+        commands: dict[str, list[str]] = {}
         if not args.no_record:
             prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
             model_ids = ",".join(
@@ -284,9 +276,16 @@ def run_up(args: argparse.Namespace) -> int:
                     "model_ids": f"'{model_ids}'",
                 },
             )
-            log = (run_dir / "recorder.log").open("wb")
-            children["recorder"] = subprocess.Popen(
-                recorder, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+            commands["recorder"] = recorder
+        commands |= _stage_commands([p.id for p in plans], models)
+        for plan in plans:
+            commands |= _commands(plan, rate, run_dir)
+        for name, cmd in commands.items():
+            log = (run_dir / f"{name}.log").open("wb")
+            # Own process group: a Ctrl-C reaches children only through _stop_children,
+            # so they stop in order after the table's last print.
+            children[name] = subprocess.Popen(
+                cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
             )
         kinds = ", ".join(
             f"{p.id}: {'serial ' + p.port if p.port else 'simulated ' + p.preset}" for p in plans

@@ -97,9 +97,8 @@ def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
             elif topic.endswith(_RESIDUAL):
                 used.setdefault(tid, set()).add(ns)
             elif topic.endswith(_DIAGNOSIS):
-                recorded.setdefault(tid, []).append(
-                    (stamp.sec + stamp.nanosec * 1e-9, decoded.label)
-                )
+                # The same float as the replayer's stamp_ns * 1e-9, so equal stamps compare equal.
+                recorded.setdefault(tid, []).append((ns * 1e-9, decoded.label))
     if not telemetry:
         raise ValueError(f"{path}: no /thruster/<id>/esc/telemetry messages to replay")
     bags = []
@@ -149,8 +148,10 @@ class ReplayCheck:
     source : str
         ``recorded``, ``truth`` or ``none``.
     agreement : float or None
-        Fraction of replayed decisions equal to the expectation at their time (ground truth:
-        decisions within ``settle_s`` after a label change are not counted).
+        Fraction of replayed decisions equal to the expectation at their time: the recorded
+        decision nearest in time, within half the recorded decision spacing (same stamps when
+        the recording holds the live run from its first residual); ground truth: decisions
+        within ``settle_s`` after a label change are not counted.
     passed : bool
         Sequences equal and agreement at least the threshold (True when nothing is expected).
     """
@@ -162,6 +163,26 @@ class ReplayCheck:
     source: str
     agreement: float | None
     passed: bool
+
+
+def _nearest_pairs(
+    expected: list[tuple[float, str]], got: list[tuple[float, str]]
+) -> list[tuple[str, str]]:
+    """(recorded, replayed) labels of replayed decisions with a recorded one within half the
+    median recorded spacing."""
+    times = np.array(sorted(t for t, _ in expected))
+    if times.size == 0:
+        return []
+    labels = [label for _, label in sorted(expected)]
+    tol = 0.5 * float(np.median(np.diff(times))) if times.size > 1 else 0.5
+    pairs = []
+    for t, label in got:
+        i = int(np.searchsorted(times, t))
+        near = [j for j in (i - 1, i) if 0 <= j < times.size]
+        j = min(near, key=lambda k: abs(times[k] - t))
+        if abs(times[j] - t) <= tol:
+            pairs.append((labels[j], label))
+    return pairs
 
 
 def check(
@@ -177,8 +198,7 @@ def check(
     if bag.recorded:
         expected = [(t, label) for t, label in bag.recorded]
         exp_labels = collapse([label for _, label in expected if label != "unknown"])
-        lookup = dict(expected)
-        pairs = [(lookup.get(t), label) for t, label in got if t in lookup]
+        pairs = _nearest_pairs(expected, got)
         agreement = sum(1 for a, b in pairs if a == b) / len(pairs) if pairs else 0.0
         passed = sequence == exp_labels and agreement >= min_agreement
         return ReplayCheck(

@@ -1,7 +1,9 @@
 """Recorder node: every topic of the graph, as raw CDR, into MCAP files.
 
 Discovers topics periodically (new ones are picked up as they appear), subscribes with
-``raw=True`` and the QoS its publishers offer (reliable only when every publisher is), and
+``raw=True`` and the QoS its publishers offer (reliable only when every publisher is;
+transient-local, deep, when every publisher is, so the history published before the recorder
+matched — the first residuals of a run — is recorded too, as rosbag2 does), and
 hands the bytes to ``core.recording.McapRecorder``. An unwritable folder or a full disk is
 reported on ``/diagnostics`` as ERROR while the node (and the rest of the graph) keeps running.
 """
@@ -16,7 +18,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from thruster_fdd.core.recording import McapRecorder, RecordingPolicy
 from thruster_fdd.nodes.common import (
@@ -27,6 +29,8 @@ from thruster_fdd.nodes.common import (
 )
 
 _THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
+# At least the depth of the deepest transient-local publisher (fdd/residual keeps 500).
+_LATCHED_DEPTH = 1000
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("output_dir", "recordings", "folder of the MCAP files (created if missing)"),
@@ -125,11 +129,18 @@ class Recorder(Node):
             reliable = bool(publishers) and all(
                 info.qos_profile.reliability == ReliabilityPolicy.RELIABLE for info in publishers
             )
+            latched = bool(publishers) and all(
+                info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                for info in publishers
+            )
             qos = QoSProfile(
-                depth=200,
+                depth=_LATCHED_DEPTH if latched else 200,
                 reliability=ReliabilityPolicy.RELIABLE
                 if reliable
                 else ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL
+                if latched
+                else DurabilityPolicy.VOLATILE,
             )
             self.create_subscription(
                 msg_class,
