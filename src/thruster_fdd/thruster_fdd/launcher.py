@@ -25,6 +25,7 @@ from typing import Any
 import yaml
 
 from thruster_fdd.core.data import CLASS_NAMES
+from thruster_fdd.lifetime import child_env, stop_with_parent
 
 DESCRIPTION = (
     "Start the node set. Simulated thrusters (the default) each get a microcontroller emulator "
@@ -251,6 +252,7 @@ def run_up(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
+    stop_with_parent()
 
     children: dict[str, subprocess.Popen[bytes]] = {}
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
@@ -285,7 +287,7 @@ def run_up(args: argparse.Namespace) -> int:
             # Own process group: a Ctrl-C reaches children only through _stop_children,
             # so they stop in order after the table's last print.
             children[name] = subprocess.Popen(
-                cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+                cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=child_env()
             )
         kinds = ", ".join(
             f"{p.id}: {'serial ' + p.port if p.port else 'simulated ' + p.preset}" for p in plans
@@ -338,6 +340,7 @@ def run_emulate(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
+    stop_with_parent()
     if args.fault_at is not None and args.fault_condition is not None:
         fault = SetCondition(args.fault_condition)
         timer = threading.Timer(args.fault_at, emulator.inject, (fault,))

@@ -1,15 +1,22 @@
 """``thruster-fdd replay``: a recording's telemetry through the model nodes, checked.
 
 Starts a ``nominal_model`` (and, when a classifier is exported, a ``classifier``) node per
-thruster of the bag, publishes the recorded telemetry in lockstep with the residuals it
-produces (``core.replay``), collects the published diagnoses and compares them with the bag's
-recorded diagnoses or ground truth. Exit 0 when every thruster passes, 1 when one does not.
+thruster of the bag, publishes the samples the live model used (``core.replay``) over reliable
+QoS, collects the published diagnoses and compares them with the bag's recorded diagnoses or
+ground truth. Exit 0 when every thruster passes, 1 when one does not.
+
+Pacing, so no queue can overflow and nothing is lost however fast it runs: with a classifier,
+the replay stays at most ``MAX_LAG`` samples ahead of the classifier's last decision, and the
+nodes' residual counters on ``/diagnostics`` confirm at the end that every sample reached the
+classifier; without one, at most ``IN_FLIGHT`` samples ahead of the residuals it gets back.
+(Listening to every residual as well costs the replay about a fifth of its speed.)
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import struct
 import subprocess
 import sys
 import time
@@ -17,6 +24,7 @@ from collections import deque
 from pathlib import Path
 
 from thruster_fdd.core.replay import ReplayCheck, ThrusterBag, check, load_bag
+from thruster_fdd.lifetime import child_env
 
 DESCRIPTION = (
     "Replay the telemetry of an MCAP recording through freshly started model nodes "
@@ -38,13 +46,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.set_defaults(func=run_replay)
 
 
-# Samples published ahead of their residual: below the nodes' sensor-data queue depth (10), so
-# none can be dropped, and enough to keep the nodes busy between two answers.
-IN_FLIGHT = 4
+# Samples published ahead of their residual: far below the nominal model's replay queue depth
+# (reliable, 1000; ``reliable_telemetry``), so none can be dropped, and enough to keep the nodes
+# busy between two answers.
+IN_FLIGHT = 32
+# Longest wait for the model nodes' statuses that confirm every sample arrived, s.
+STATUS_WAIT_S = 3.0
+# Start-up: time given to the model nodes to match each other once they match the replayer, s.
+SETTLE_S = 1.0
 # A residual not back after this long counts as lost, s (generous: a loaded CI machine).
 ANSWER_TIMEOUT_S = 5.0
 # No new diagnosis for this long ends the replay, s.
 QUIET_S = 2.0
+
+
+def _stamp_ns(cdr: bytes) -> int:
+    """Header stamp (ns) of a serialized message that starts with a std_msgs/Header: after the
+    4-byte encapsulation, ``int32 sec`` and ``uint32 nanosec`` in the byte order it names.
+    Decoding only the stamp keeps the replayer's cost per residual small."""
+    order = "<" if cdr[1] & 1 else ">"
+    sec, nanosec = struct.unpack_from(f"{order}iI", cdr, 4)
+    return sec * 1_000_000_000 + nanosec
 
 
 def _wait_answer(executor: object, answered: set[int], in_flight: deque[int]) -> int:
@@ -58,8 +80,9 @@ def _wait_answer(executor: object, answered: set[int], in_flight: deque[int]) ->
     return 0
 
 
-# Samples the classifier may fall behind the replay, below its queue depth (500): a window
-# (200 samples) plus slack. Its diagnoses' stamps tell how far it has got.
+# Samples the classifier may fall behind the replay, below its queue depth (500) and the
+# nominal model's (1000): a window (200 samples) plus slack. Its diagnoses' stamps tell how far
+# it has got.
 MAX_LAG = 300
 
 
@@ -73,6 +96,31 @@ def _wait_classifier(executor: object, diagnosed: dict[str, int], tid: str, inde
     return 0
 
 
+# The residual counter each model node reports in its /diagnostics status.
+COUNTERS = {"nominal_model": "residuals_published", "classifier": "residuals_received"}
+
+
+def _missing_residuals(
+    executor: object, bags: tuple[ThrusterBag, ...], counters: dict[str, dict[str, int]]
+) -> int:
+    """Samples that did not reach the classifier as residuals, from the nodes' counters.
+
+    Waits for the next /diagnostics statuses (one a second) until every thruster's nominal
+    model and classifier count all of its samples, at most ``STATUS_WAIT_S``.
+    """
+
+    def missing() -> int:
+        return sum(
+            len(b.stamps_ns) - min(counters[b.thruster_id].get(name, 0) for name in COUNTERS)
+            for b in bags
+        )
+
+    deadline = time.monotonic() + STATUS_WAIT_S
+    while missing() > 0 and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.1)  # type: ignore[attr-defined]
+    return missing()
+
+
 def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> list[subprocess.Popen[bytes]]:
     procs = []
     for bag in bags:
@@ -82,13 +130,16 @@ def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> list[subprocess
             cmd = [sys.executable, "-m", f"thruster_fdd.nodes.{node}", "--ros-args"]
             cmd += ["-r", f"__ns:=/thruster/{bag.thruster_id}"]
             cmd += ["-p", f"thruster_id:={bag.thruster_id}", "-p", f"model_dir:={models / folder}"]
-            procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL))
+            if node == "nominal_model":
+                cmd += ["-p", "reliable_telemetry:=true"]
+            procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, env=child_env()))
     return procs
 
 
 def run_replay(args: argparse.Namespace) -> int:
     """Replay ``args.bag`` and check the diagnoses; returns the exit code."""
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -114,13 +165,24 @@ def run_replay(args: argparse.Namespace) -> int:
     diagnoses: dict[str, list[tuple[float, str]]] = {b.thruster_id: [] for b in bags}
     diagnosed: dict[str, int] = {b.thruster_id: -1 for b in bags}
     pubs = {}
+    matched = []  # the entities that must be matched with the model nodes before starting
+    with_classifier = (models / "classifier" / "model_card.json").is_file()
+    # Per thruster: the residual counters the model nodes report on /diagnostics.
+    counters: dict[str, dict[str, int]] = {b.thruster_id: {} for b in bags}
+
+    def on_status(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            namespace, _, name = status.name.rpartition("/")
+            tid = namespace.rpartition("/")[2]
+            for kv in status.values:
+                if tid in counters and kv.key == COUNTERS.get(name):
+                    counters[tid][name] = int(kv.value)
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_status, reliable)
     for bag in bags:
         tid = bag.thruster_id
         pubs[tid] = node.create_publisher(EscTelemetry, f"/thruster/{tid}/esc/telemetry", reliable)
-
-        def on_residual(msg: Residual, tid: str = tid) -> None:
-            answered[tid].add(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
-
+        matched.append(pubs[tid].get_subscription_count)
         index = {stamp: i for i, stamp in enumerate(bag.stamps_ns)}
 
         def on_diagnosis(msg: Diagnosis, tid: str = tid, index: dict[int, int] = index) -> None:
@@ -129,21 +191,25 @@ def run_replay(args: argparse.Namespace) -> int:
                 diagnosed[tid] = max(diagnosed[tid], index[stamp_ns])
                 diagnoses[tid].append((stamp_ns * 1e-9, msg.label))
 
-        node.create_subscription(Residual, f"/thruster/{tid}/fdd/residual", on_residual, reliable)
-        node.create_subscription(
-            Diagnosis, f"/thruster/{tid}/fdd/diagnosis", on_diagnosis, reliable
-        )
-    # Every node must listen before the first sample: telemetry goes to the nominal model,
-    # residuals to the classifier (when there is one) and to this replayer.
-    with_classifier = (models / "classifier" / "model_card.json").is_file()
+        if with_classifier:
+            sub = node.create_subscription(
+                Diagnosis, f"/thruster/{tid}/fdd/diagnosis", on_diagnosis, reliable
+            )
+        else:
+
+            def on_residual(data: bytes, tid: str = tid) -> None:
+                answered[tid].add(_stamp_ns(data))
+
+            sub = node.create_subscription(
+                Residual, f"/thruster/{tid}/fdd/residual", on_residual, reliable, raw=True
+            )
+        matched.append(sub.get_publisher_count)
 
     def all_listening() -> bool:
-        return all(
-            node.count_subscribers(f"/thruster/{b.thruster_id}/esc/telemetry") >= 1
-            and node.count_subscribers(f"/thruster/{b.thruster_id}/fdd/residual")
-            >= 1 + with_classifier
-            for b in bags
-        )
+        # Matched endpoints, not only the graph: a sample published before its reader matched
+        # would be lost. The classifier's own match with the residuals is not visible from
+        # here; transient-local residuals cover it, and SETTLE_S gives it time to happen.
+        return all(count() >= 1 for count in matched)
 
     try:
         deadline = time.monotonic() + 60
@@ -152,6 +218,9 @@ def run_replay(args: argparse.Namespace) -> int:
         if not all_listening():
             print("thruster-fdd replay: the model nodes did not start", file=sys.stderr)
             return 1
+        settle_end = time.monotonic() + SETTLE_S
+        while time.monotonic() < settle_end:
+            executor.spin_once(timeout_sec=0.05)
         start = time.monotonic()
         timeouts = 0
         stalls = 0
@@ -173,10 +242,11 @@ def run_replay(args: argparse.Namespace) -> int:
                     due = start + (stamp_ns - first_ns) * 1e-9 / args.rate
                     while time.monotonic() < due:
                         executor.spin_once(timeout_sec=due - time.monotonic())
-                while len(in_flight) >= IN_FLIGHT:
+                while not with_classifier and len(in_flight) >= IN_FLIGHT:
                     timeouts += _wait_answer(executor, answered[bag.thruster_id], in_flight)
                 pubs[bag.thruster_id].publish(raw)
-                in_flight.append(stamp_ns)
+                if not with_classifier:
+                    in_flight.append(stamp_ns)
                 total += 1
             while in_flight:
                 timeouts += _wait_answer(executor, answered[bag.thruster_id], in_flight)
@@ -191,6 +261,8 @@ def run_replay(args: argparse.Namespace) -> int:
             if now_count != count:
                 count, quiet_since = now_count, time.monotonic()
         wall = time.monotonic() - start - QUIET_S
+        if with_classifier and not stalls:
+            timeouts = _missing_residuals(executor, bags, counters)
     finally:
         for proc in procs:
             proc.send_signal(2)
@@ -225,6 +297,7 @@ def run_replay(args: argparse.Namespace) -> int:
                     "speedup": span / wall,
                     "timeouts": timeouts,
                     "classifier_stalls": stalls,
+                    "residual_counters": counters,
                     "thrusters": [
                         r.__dict__ | {"diagnoses": diagnoses[r.thruster_id]} for r in results
                     ],

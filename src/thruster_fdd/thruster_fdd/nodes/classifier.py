@@ -80,6 +80,7 @@ class ClassifierNode(Node):
         self._last: Decision | None = None
         self._mismatch = ""
         self._stale = False
+        self._received = 0
         self._pub = self.create_publisher(Diagnosis, "fdd/diagnosis", RELIABLE_10)
         self._diag_pub = diagnostics_publisher(self)
         self.create_subscription(Residual, "fdd/residual", self._on_residual, INPUT_QOS)
@@ -93,6 +94,7 @@ class ClassifierNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_residual(self, msg: Residual) -> None:
+        self._received += 1
         self._last_input_s = self._now_s()
         self._stale = False
         if msg.model_id != self._model.nominal_model_id:
@@ -180,6 +182,7 @@ class ClassifierNode(Node):
             self._model.model_id,
             [
                 ("label", label),
+                ("residuals_received", str(self._received)),
                 ("model_id", self._model.model_id),
                 ("nominal_model_id", self._model.nominal_model_id),
             ],

@@ -8,10 +8,12 @@ from collections.abc import Callable, Iterable
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from thruster_fdd.lifetime import stop_with_parent
 
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -53,6 +55,7 @@ def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
 
     A node with a ``shutdown()`` method gets it called before it is destroyed.
     """
+    stop_with_parent()
     rclpy.init(args=args)
     try:
         node = factory()
@@ -60,13 +63,27 @@ def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
         print(f"{factory.__name__}: cannot start: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(1)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        release_and_destroy(executor, [node])
+        rclpy.try_shutdown()
+
+
+def release_and_destroy(executor: Executor, nodes: Iterable[Node]) -> None:
+    """Shut ``executor`` down, then call each node's ``shutdown()`` (if any) and destroy it.
+
+    A Ctrl-C inside a callback leaves the executor's wait generator suspended while it holds
+    the node's handles; ``destroy_node`` would then spin forever waiting for them (seen: an
+    orphaned node at full CPU). Shutting the executor down drops that generator first.
+    """
+    executor.shutdown(timeout_sec=1.0)
+    for node in nodes:
         shutdown = getattr(node, "shutdown", None)
         if shutdown is not None:
             shutdown()
         node.destroy_node()
-        rclpy.try_shutdown()

@@ -18,6 +18,9 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
+from thruster_fdd.lifetime import stop_with_parent
+from thruster_fdd.nodes.common import release_and_destroy
+
 # Node kind -> (module, class) under thruster_fdd.nodes.
 KINDS = {
     "esc_driver": ("esc_driver", "EscDriver"),
@@ -47,6 +50,7 @@ def main(argv: list[str] | None = None) -> None:
     module, cls_name = KINDS[args.kind]
     node_cls = getattr(importlib.import_module(f"thruster_fdd.nodes.{module}"), cls_name)
     shared = [Parameter(k, value=_value(v)) for k, _, v in (p.partition("=") for p in args.params)]
+    stop_with_parent()
     rclpy.init()
     executor = SingleThreadedExecutor()
     nodes = []
@@ -63,10 +67,7 @@ def main(argv: list[str] | None = None) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        for node in nodes:
-            if hasattr(node, "shutdown"):
-                node.shutdown()
-            node.destroy_node()
+        release_and_destroy(executor, nodes)
         rclpy.try_shutdown()
 
 

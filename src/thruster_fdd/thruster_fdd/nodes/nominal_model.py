@@ -38,12 +38,20 @@ RESIDUAL_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+# Telemetry for a replay: reliable, so a fast replayer can keep many samples in flight and
+# none is lost. A best-effort publisher (the ESC driver) does not match it.
+REPLAY_TELEMETRY_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("thruster_id", "t0", "thruster id written into every message"),
     ("model_dir", "", "exported nominal model folder (empty: <models>/nominal)"),
     ("max_gap_periods", 3.0, "a telemetry gap longer than this many model periods resets state"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
+    (
+        "reliable_telemetry",
+        False,
+        "subscribe to esc/telemetry reliable, depth 1000 (replay), not sensor data (driver)",
+    ),
 )
 
 
@@ -62,9 +70,10 @@ class NominalModelNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._pub = self.create_publisher(Residual, "fdd/residual", RESIDUAL_QOS)
         self._diag_pub = diagnostics_publisher(self)
-        self.create_subscription(
-            EscTelemetry, "esc/telemetry", self._on_telemetry, qos_profile_sensor_data
+        telemetry_qos = (
+            REPLAY_TELEMETRY_QOS if p("reliable_telemetry").value else qos_profile_sensor_data
         )
+        self.create_subscription(EscTelemetry, "esc/telemetry", self._on_telemetry, telemetry_qos)
         self._diag_period_s = float(p("diagnostics_period_s").value)
         self.create_timer(self._diag_period_s, self._publish_diagnostics)
         self._published = 0
@@ -141,6 +150,7 @@ class NominalModelNode(Node):
             self._model.model_id,
             [
                 ("residual_rate_hz", f"{rate:.1f}"),
+                ("residuals_published", str(self._published)),
                 ("model_id", self._model.model_id),
                 ("resets", str(self._stream.resets)),
                 ("invalid_samples", str(self._stream.invalid)),

@@ -1,0 +1,36 @@
+"""Child processes that stop when the process that started them dies.
+
+``thruster-fdd up`` and ``replay`` start nodes as child processes. When such a parent is killed
+outright (``kill -9``, a test's time-out), its children would run on as orphans and keep
+publishing into the graph. A parent sets ``PARENT_PID_ENV`` in a child's environment; the child
+calls :func:`stop_with_parent` at start and gets SIGINT, its normal clean stop, when the parent
+dies. Linux only (``prctl``); elsewhere it does nothing.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import sys
+
+PARENT_PID_ENV = "THRUSTER_FDD_PARENT_PID"
+_PR_SET_PDEATHSIG = 1
+
+
+def child_env() -> dict[str, str]:
+    """This process's environment plus ``PARENT_PID_ENV`` naming it, for ``subprocess``."""
+    return {**os.environ, PARENT_PID_ENV: str(os.getpid())}
+
+
+def stop_with_parent() -> None:
+    """Get SIGINT when the parent named in ``PARENT_PID_ENV`` dies (no-op when unset)."""
+    parent = os.environ.get(PARENT_PID_ENV)
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGINT), 0, 0, 0) != 0:
+        return
+    # The parent may have died before prctl took effect: then we were re-parented already.
+    if os.getppid() != int(parent):
+        os.kill(os.getpid(), signal.SIGINT)
