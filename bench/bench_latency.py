@@ -2,10 +2,11 @@
 
 Runs ``thruster-fdd up`` (simulated thrusters, models, no recorder) and listens to every
 thruster's ``fdd/diagnosis``. A diagnosis carries the header stamp of the telemetry sample that
-closed its window — the time the ESC driver received that frame — so arrival time minus stamp
-is the whole chain: driver -> nominal_model -> classifier -> this subscriber. The same is
-measured at the telemetry and residual topics, to show where the time goes. Prints median, p95
-and p99 over all messages after a warm-up.
+closed its window — the time the ESC driver received that frame — and DDS gives each message
+its source timestamp, the time it was published. So "published" is the chain driver ->
+nominal_model -> classifier up to the classifier's publish call (the target), "received" adds
+the hop to a subscriber (this one). The same is measured at the telemetry and residual topics,
+to show where the time goes. Prints median, p95 and p99 over all messages after a warm-up.
 
 Usage (after ``. scripts/bootstrap.sh``): ``python bench/bench_latency.py --thrusters 4``
 """
@@ -45,16 +46,18 @@ def main() -> None:
     node = rclpy.create_node("bench_latency")
     stages = ("telemetry", "residual", "diagnosis")
     latencies_ms: dict[str, list[float]] = {stage: [] for stage in stages}
+    published_ms: dict[str, list[float]] = {stage: [] for stage in stages}
     start = time.monotonic()
 
-    def listener(stage: str) -> Callable[[Any], None]:
-        def on_message(msg: Any) -> None:
+    def listener(stage: str) -> Callable[[Any, dict[str, int]], None]:
+        def on_message(msg: Any, info: dict[str, int]) -> None:
             if time.monotonic() - start < args.warmup:
                 return
             if stage == "diagnosis" and msg.confidence == 0.0:
                 return  # the UNKNOWN a silent classifier says on its own clock
             stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             latencies_ms[stage].append((node.get_clock().now().nanoseconds - stamp_ns) / 1e6)
+            published_ms[stage].append((info["source_timestamp"] - stamp_ns) / 1e6)
 
         return on_message
 
@@ -74,14 +77,18 @@ def main() -> None:
     rclpy.shutdown()
     if not latencies_ms["diagnosis"]:
         raise SystemExit("no diagnosis received")
-    print(f"{args.thrusters} thrusters at {args.rate:g} Hz; latency from telemetry received:")
+    print(
+        f"{args.thrusters} thruster(s) at {args.rate:g} Hz, load average "
+        f"{os.getloadavg()[0]:.2f}; latency from telemetry received by the ESC driver:"
+    )
     for stage in stages:
-        ordered = sorted(latencies_ms[stage])
-        p = [ordered[min(len(ordered) - 1, int(q * len(ordered)))] for q in (0.95, 0.99)]
-        print(
-            f"  -> {stage:9s} received: median {statistics.median(ordered):.2f} ms, "
-            f"p95 {p[0]:.2f} ms, p99 {p[1]:.2f} ms, max {ordered[-1]:.2f} ms ({len(ordered)})"
-        )
+        for what, values in (("published", published_ms[stage]), ("received", latencies_ms[stage])):
+            ordered = sorted(values)
+            p = [ordered[min(len(ordered) - 1, int(q * len(ordered)))] for q in (0.95, 0.99)]
+            print(
+                f"  -> {stage:9s} {what:9s}: median {statistics.median(ordered):.2f} ms, "
+                f"p95 {p[0]:.2f} ms, p99 {p[1]:.2f} ms, max {ordered[-1]:.2f} ms ({len(ordered)})"
+            )
 
 
 if __name__ == "__main__":

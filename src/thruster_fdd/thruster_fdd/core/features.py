@@ -78,9 +78,16 @@ LF_HZ = 0.2
 _MAD_TO_STD = 1.4826
 
 
+def _median(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D array without NaN, at a fraction of its cost on short arrays."""
+    s = np.sort(x)
+    m = len(s) // 2
+    return float(s[m]) if len(s) % 2 else float((s[m - 1] + s[m]) / 2.0)
+
+
 def _mad(x: np.ndarray) -> float:
     """Robust standard deviation: 1.4826 x median absolute deviation."""
-    return float(_MAD_TO_STD * np.median(np.abs(x - np.median(x)))) if len(x) else float("nan")
+    return _MAD_TO_STD * _median(np.abs(x - _median(x))) if len(x) else float("nan")
 
 
 def _ratio(num: np.ndarray, den: np.ndarray, mask: np.ndarray) -> float:
@@ -164,12 +171,14 @@ def _hf_fraction(x: np.ndarray, sample_time_s: float) -> float:
     """Fraction of the linearly detrended signal's power between LF_HZ and HF_HZ.. Nyquist that
     lies above HF_HZ; NaN when the band is empty or the signal has no power there."""
     n = len(x)
-    t = np.arange(n)
-    detrended = x - np.polyval(np.polyfit(t, x, 1), t)
+    # Least-squares line through (i, x_i), closed form (what np.polyfit(i, x, 1) fits).
+    t = np.arange(n) - (n - 1) / 2.0
+    slope = float(t @ (x - x.mean())) / float(t @ t)
+    detrended = x - x.mean() - slope * t
     power = np.abs(np.fft.rfft(detrended)) ** 2
     freq = np.fft.rfftfreq(n, sample_time_s)
-    band = power[freq >= LF_HZ]
-    total = float(band.sum())
-    if not np.any(freq >= HF_HZ) or total <= 0:
+    total = float(power[freq >= LF_HZ].sum())
+    high = freq >= HF_HZ
+    if not high.any() or total <= 0:
         return float("nan")
-    return float(power[freq >= HF_HZ].sum()) / total
+    return float(power[high].sum()) / total

@@ -1,0 +1,78 @@
+"""Node processes end: on Ctrl-C while busy, and when the process that started them is killed."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from thruster_fdd.lifetime import PARENT_PID_ENV
+
+pytestmark = pytest.mark.ros
+
+# A parent that starts a nominal_model node as ``up`` and ``replay`` do, prints its pid, waits.
+PARENT = textwrap.dedent(
+    """
+    import subprocess, sys, time
+    from thruster_fdd.lifetime import child_env
+    cmd = [sys.executable, "-m", "thruster_fdd.nodes.nominal_model", "--ros-args",
+           "-r", "__ns:=/thruster/life"]
+    child = subprocess.Popen(cmd, env=child_env(), stdout=subprocess.DEVNULL)
+    print(child.pid, flush=True)
+    time.sleep(120)
+    """
+)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A zombie is gone for our purpose: it no longer runs.
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().split(")")[-1].split()[0] != "Z"
+
+
+def _wait_gone(pid: int, timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if not _alive(pid):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_node_stops_when_its_parent_is_killed() -> None:
+    parent = subprocess.Popen([sys.executable, "-c", PARENT], stdout=subprocess.PIPE, text=True)
+    try:
+        assert parent.stdout is not None
+        child = int(parent.stdout.readline())
+        time.sleep(8.0)  # torch and the model load
+        assert _alive(child), "the node died on its own"
+        parent.kill()
+        parent.wait(timeout=10)
+        assert _wait_gone(child, 15.0), "the node outlived its killed parent"
+    finally:
+        parent.kill()
+        subprocess.run(["pkill", "-9", "-f", "__ns:=/thruster/life"], check=False)
+
+
+def test_node_exits_promptly_on_ctrl_c() -> None:
+    env = {k: v for k, v in os.environ.items() if k != PARENT_PID_ENV}
+    cmd = [sys.executable, "-m", "thruster_fdd.nodes.nominal_model", "--ros-args"]
+    cmd += ["-r", "__ns:=/thruster/life2"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL)
+    try:
+        time.sleep(8.0)
+        assert proc.poll() is None, "the node died on its own"
+        proc.send_signal(signal.SIGINT)
+        # Ctrl-C: the executor is shut down before the node is destroyed, so it exits promptly.
+        assert proc.wait(timeout=10) == 0
+    finally:
+        proc.kill()
