@@ -22,15 +22,14 @@ from collections import defaultdict
 from pathlib import Path
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-KINDS = (
-    "emulate",
-    "esc_driver",
-    "command_player",
-    "nominal_model",
-    "classifier",
-    "recorder",
-    "container",
-)
+# Process kinds by what their command line runs (the model container hosts both model stages).
+KINDS = {
+    "thruster_fdd.nodes.container": "models (container)",
+    "emulate": "emulate",
+    "thruster_fdd.nodes.esc_driver": "esc_driver",
+    "thruster_fdd.nodes.command_player": "command_player",
+    "thruster_fdd.nodes.recorder": "recorder",
+}
 
 
 def _descendants(pid: int) -> list[int]:
@@ -61,7 +60,7 @@ def _sample(pid: int) -> tuple[float, float, str] | None:
         )
     except (OSError, StopIteration):
         return None
-    kind = next((k for k in KINDS if k in cmdline), "up (monitor)")
+    kind = next((name for key, name in KINDS.items() if key in cmdline), "up (monitor)")
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS, rss_kb / 1024, kind
 
 

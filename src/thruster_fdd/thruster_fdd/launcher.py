@@ -214,14 +214,16 @@ def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[
 
 
 def _stage_commands(ids: list[str], models: Path) -> dict[str, list[str]]:
-    """One container per model stage whose model is exported, hosting every thruster's node."""
-    out = {}
-    for stage in MODEL_STAGES:
-        if (models / stage.folder / "model_card.json").is_file():
-            cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", stage.node]
-            cmd += ["--thrusters", *ids, "-p", f"model_dir={models / stage.folder}"]
-            out[stage.node] = cmd
-    return out
+    """One container hosting every thruster's node of each model stage whose model is exported
+    (``nodes/container.py``: torch loaded once; residuals stay in the process)."""
+    stages = [st for st in MODEL_STAGES if (models / st.folder / "model_card.json").is_file()]
+    if not stages:
+        return {}
+    cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", *(st.node for st in stages)]
+    cmd += ["--thrusters", *ids]
+    for st in stages:
+        cmd += ["-p", f"{st.node}:model_dir={models / st.folder}"]
+    return {"models": cmd}
 
 
 def _stop_children(children: dict[str, subprocess.Popen[bytes]], timeout_s: float = 5.0) -> None:

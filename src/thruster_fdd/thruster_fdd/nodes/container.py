@@ -1,11 +1,13 @@
-"""Container: several nodes of one kind, one per thruster, in a single process.
+"""Container: nodes of one or more kinds, one of each per thruster, in a single process.
 
-``thruster-fdd up`` runs each model stage (``nominal_model``, ``classifier``) of all thrusters
-in one container, so torch and the model code are loaded once, not once per thruster — the ROS
-composition idea with plain rclpy. Every node keeps its own namespace ``/thruster/<id>``, its
-parameters and its parameter services (``thruster-fdd reload`` works the same).
+``thruster-fdd up`` runs both model stages (``nominal_model``, ``classifier``) of all thrusters
+in one container, so torch and the model code are loaded once, not once per thruster and stage
+(about 300 MB each), and residuals reach the classifier without a hop between processes — the
+ROS composition idea with plain rclpy. Every node keeps its own namespace ``/thruster/<id>``,
+its parameters and its parameter services (``thruster-fdd reload`` works the same).
 
-Usage: ``python -m thruster_fdd.nodes.container KIND --thrusters t0 t1 [-p name=value ...]``
+Usage: ``python -m thruster_fdd.nodes.container KIND [KIND ...] --thrusters t0 t1
+[-p [KIND:]name=value ...]``; a ``KIND:`` prefix gives the parameter to that kind's nodes only.
 """
 
 from __future__ import annotations
@@ -41,28 +43,40 @@ def _value(text: str) -> object:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Create one node of ``KIND`` per thruster and spin them all until Ctrl-C."""
+    """Create one node of each ``KIND`` per thruster and spin them all until Ctrl-C."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("kind", choices=sorted(KINDS))
+    parser.add_argument("kinds", nargs="+", choices=sorted(KINDS), metavar="KIND")
     parser.add_argument("--thrusters", nargs="+", required=True, metavar="ID")
-    parser.add_argument("-p", dest="params", action="append", default=[], metavar="NAME=VALUE")
+    parser.add_argument(
+        "-p", dest="params", action="append", default=[], metavar="[KIND:]NAME=VALUE"
+    )
     args = parser.parse_args(argv)
-    module, cls_name = KINDS[args.kind]
-    node_cls = getattr(importlib.import_module(f"thruster_fdd.nodes.{module}"), cls_name)
-    shared = [Parameter(k, value=_value(v)) for k, _, v in (p.partition("=") for p in args.params)]
+    params: dict[str, list[Parameter]] = {kind: [] for kind in args.kinds}
+    for text in args.params:
+        key, _, value = text.partition("=")
+        target, _, name = key.rpartition(":")
+        if target and target not in params:
+            parser.error(f"-p {text}: {target} is not among the kinds {args.kinds}")
+        for kind in [target] if target else args.kinds:
+            params[kind].append(Parameter(name, value=_value(value)))
+    classes = {}
+    for kind in args.kinds:
+        module, cls_name = KINDS[kind]
+        classes[kind] = getattr(importlib.import_module(f"thruster_fdd.nodes.{module}"), cls_name)
     stop_with_parent()
     rclpy.init()
     executor = SingleThreadedExecutor()
     nodes = []
     try:
         for tid in args.thrusters:
-            overrides = [Parameter("thruster_id", value=tid), *shared]
-            node = node_cls(namespace=f"/thruster/{tid}", parameter_overrides=overrides)
-            nodes.append(node)
-            executor.add_node(node)
+            for kind, node_cls in classes.items():
+                overrides = [Parameter("thruster_id", value=tid), *params[kind]]
+                node = node_cls(namespace=f"/thruster/{tid}", parameter_overrides=overrides)
+                nodes.append(node)
+                executor.add_node(node)
         executor.spin()
     except ValueError as exc:
-        print(f"container {args.kind}: cannot start: {exc}", file=sys.stderr)
+        print(f"container {' '.join(args.kinds)}: cannot start: {exc}", file=sys.stderr)
         sys.exit(1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
