@@ -42,6 +42,27 @@ def _value(text: str) -> object:
     return text
 
 
+def parse_parameters(kinds: list[str], texts: list[str]) -> dict[str, list[Parameter]]:
+    """The parameter overrides of each kind from ``-p [KIND:]NAME=VALUE`` texts.
+
+    Raises
+    ------
+    ValueError
+        If a text has no ``=`` or names a kind not in ``kinds``.
+    """
+    params: dict[str, list[Parameter]] = {kind: [] for kind in kinds}
+    for text in texts:
+        key, eq, value = text.partition("=")
+        target, _, name = key.rpartition(":")
+        if not eq or not name:
+            raise ValueError(f"-p {text}: expected [KIND:]NAME=VALUE")
+        if target and target not in params:
+            raise ValueError(f"-p {text}: {target} is not among the kinds {kinds}")
+        for kind in [target] if target else kinds:
+            params[kind].append(Parameter(name, value=_value(value)))
+    return params
+
+
 def main(argv: list[str] | None = None) -> None:
     """Create one node of each ``KIND`` per thruster and spin them all until Ctrl-C."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -51,14 +72,10 @@ def main(argv: list[str] | None = None) -> None:
         "-p", dest="params", action="append", default=[], metavar="[KIND:]NAME=VALUE"
     )
     args = parser.parse_args(argv)
-    params: dict[str, list[Parameter]] = {kind: [] for kind in args.kinds}
-    for text in args.params:
-        key, _, value = text.partition("=")
-        target, _, name = key.rpartition(":")
-        if target and target not in params:
-            parser.error(f"-p {text}: {target} is not among the kinds {args.kinds}")
-        for kind in [target] if target else args.kinds:
-            params[kind].append(Parameter(name, value=_value(value)))
+    try:
+        params = parse_parameters(args.kinds, args.params)
+    except ValueError as exc:
+        parser.error(str(exc))
     classes = {}
     for kind in args.kinds:
         module, cls_name = KINDS[kind]
