@@ -36,7 +36,8 @@ from tqdm import tqdm
 
 from thruster_fdd.core.data import Trace
 from thruster_fdd.core.effects import EFFECTS, make_effect
-from thruster_fdd.core.physics import RAD_S_TO_RPM, ThrusterSimulator
+from thruster_fdd.core.freerun import free_run
+from thruster_fdd.core.physics import RAD_S_TO_RPM
 from thruster_fdd.core.simconfig import Measurement, SimConfig, set_effect
 
 VERDICTS = ("effects_found", "nothing_missing", "unexplained")
@@ -397,25 +398,18 @@ def noise_free(config: SimConfig) -> SimConfig:
 def simulate_model(config: SimConfig, data: Measured) -> dict[str, np.ndarray]:
     """Free-run, noise-free simulation driven by the measured command and supply voltage.
 
+    The compiled ``core.freerun.free_run``: equal (to rounding, tested) to the reference
+    ``ThrusterSimulator`` of ``noise_free(config)`` stepped through the measured command, with
+    the supply of ``supply_voltage`` set before each step.
+
     Returns
     -------
     dict of str to np.ndarray, each shape (n,)
         ``rpm`` (raw, no reporting floor), ``current`` (A) and ``voltage`` (bus, V).
     """
     sag = config.effect("voltage_sag")
-    supply = supply_voltage(data, sag.params()["r_internal_ohm"] if sag else 0.0).tolist()
-    sim = ThrusterSimulator(noise_free(config), voltage=supply[0], seed=0)
-    rows = np.empty((len(data.t), 3))
-    previous = data.t[0]
-    level = supply[0]
-    for i, (ti, ci) in enumerate(zip(data.t.tolist(), data.command.tolist(), strict=True)):
-        if supply[i] != level:
-            level = supply[i]
-            sim.set_voltage(level)
-        s = sim.step(ci, ti - previous)
-        previous = ti
-        rows[i] = (s.rpm, s.current, s.voltage)
-    return {"rpm": rows[:, 0], "current": rows[:, 1], "voltage": rows[:, 2]}
+    supply = supply_voltage(data, sag.params()["r_internal_ohm"] if sag else 0.0)
+    return free_run(noise_free(config), data.t, data.command, supply)
 
 
 def reported(sim: dict[str, np.ndarray], data: Measured) -> dict[str, np.ndarray]:
