@@ -10,10 +10,11 @@ Steps (DESIGN.md "Command line", ``thruster-fdd discrepancy``):
    from the measured bus voltage, compared with the measurement on the fit samples.
 3. ``localize`` / ``signatures``: where the residuals lie (signal, operating region, share of the
    squared error) and the signatures that point to causes (lag, flat zone, clipping, offsets).
-4. ``search``: every effect of the vocabulary the configuration lacks is added, grid-initialised
-   and re-fitted; the best one by held-out error is accepted if its BIC on the fit samples is
-   lower and it removes at least ``MIN_GAIN`` of the held-out error. Repeated while an addition
-   helps, so two missing effects are both named.
+4. ``search``: every effect of the vocabulary the configuration lacks is added (to the calibrated
+   model and to the uncalibrated start), grid-initialised and re-fitted; it is accepted if its
+   BIC on the fit samples is lower and it (and the effect itself, by ablation) removes at least
+   ``MIN_GAIN`` of the held-out error. Repeated while an addition helps, so two missing effects
+   are both named.
 
 Measurement noise is handled explicitly: the model is simulated noise-free (noise, outliers and
 quantisation off), the measured trace is despiked, residuals are weighted by the estimated noise
@@ -26,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 
 import numpy as np
@@ -61,36 +62,15 @@ which the residual still holds structure (``unexplained`` when no candidate help
 SUPPLY_WINDOW_S = 60.0
 """Rolling-median window of the supply-voltage reconstruction, s."""
 
+CANDIDATE_ITER = 6
+"""Least-squares iterations of each candidate re-fit and of the control re-fit of a round."""
+
 N_BLOCKS = 10
 HELD_BLOCKS = (2, 5, 8)
 MAX_ROUNDS = 3
 
 BASE_RANGE = 2.0
 """Base parameters are fitted within [start / BASE_RANGE, start * BASE_RANGE]."""
-
-RELATED: dict[str, tuple[str, ...]] = {
-    "dead_time": ("esc_lag.tau_s", "slew_rate_limit.rate_per_s", "params.inertia"),
-    "deadband": ("coulomb_friction.torque_nm", "params.k_e", "params.r_ohm"),
-    "esc_lag": ("dead_time.delay_s", "slew_rate_limit.rate_per_s", "params.inertia"),
-    "slew_rate_limit": ("esc_lag.tau_s", "dead_time.delay_s", "params.inertia"),
-    "coulomb_friction": (
-        "viscous_friction.coeff",
-        "deadband.width",
-        "params.k_q",
-        "params.i_idle_a",
-    ),
-    "viscous_friction": (
-        "coulomb_friction.torque_nm",
-        "params.k_q",
-        "params.k_e",
-        "params.r_ohm",
-        "params.i_idle_a",
-    ),
-    "voltage_sag": ("params.r_ohm", "params.k_e", "params.k_q"),
-    "current_limit": ("params.r_ohm", "params.k_e", "params.k_q"),
-}
-"""Parameters re-fitted together with each candidate (those it trades off against), when
-present; the accepted candidate then gets a full calibration."""
 
 
 @dataclass(frozen=True)
@@ -660,33 +640,40 @@ def _score_config(config: SimConfig, data: Measured) -> float:
     return float(sum(np.mean(res[c][data.fit] ** 2) / data.sigma[c] ** 2 for c in CHANNELS))
 
 
-def try_candidate(name: str, base: Fit, data: Measured, max_iter: int = 6) -> Candidate:
+def try_candidate(
+    name: str,
+    base: Fit,
+    data: Measured,
+    origin: SimConfig | None = None,
+    max_iter: int = CANDIDATE_ITER,
+) -> Candidate:
     """Add effect ``name`` to ``base``, grid-initialise it, re-fit, and test it.
 
-    The re-fit frees the candidate's parameter(s), its ``RELATED`` parameters that are present
-    and all ``BASE_FIT`` parameters; acceptance needs a lower BIC on the fit samples
-    (penalising the added parameters) and a held-out gain of at least ``MIN_GAIN`` of the
-    excess error (above noise), and the effect itself must account for at least ``MIN_GAIN``:
-    removing it from the re-fit must cost that much (so a candidate is not credited with a
-    better fit of the base parameters).
+    The effect is added to ``base``'s calibrated configuration and, if given, to ``origin``
+    (the uncalibrated starting configuration plus the effects named so far), each at the best
+    of its ``candidate_grid`` values; both are re-fitted (every parameter free, ``max_iter``
+    iterations) and the re-fit with the lower BIC is kept. The second origin matters: the
+    calibrated base has distorted its parameters to make up for the missing effect, and from
+    there the effect at its true value may fit worse than not binding at all (a slew limit
+    above every duty step has no gradient to follow).
+
+    Acceptance needs a lower BIC on the fit samples (penalising the added parameters) and a
+    held-out gain of at least ``MIN_GAIN`` of the excess error (above noise), and the effect
+    itself must account for at least ``MIN_GAIN``: removing it from the re-fit must cost that
+    much (so a candidate is not credited with a better fit of the other parameters).
     """
-    trials = [
-        set_effect(base.config, make_effect(name, g))
-        for g in candidate_grid(name, base.config, data)
-    ]
-    scores = [_score_config(c, data) for c in trials]
-    start = trials[int(np.argmin(scores))]
-    present = set(free_parameters(start))
-    keys = [f"{name}.{p}" for p in param_names(name)]
-    keys += [k for k in RELATED[name] if k in present]
-    # All base parameters too: the start's fit distorts them to make up for the missing effect
-    # (e.g. k_q and r_ohm for a current limit), and an effect freed alone cannot undo that.
-    keys += [f"params.{n}" for n in BASE_FIT if f"params.{n}" not in keys]
-    fit = calibrate(start, data, keys, max_iter=max_iter)
-    fit = replace(fit, n_sims=fit.n_sims + len(trials))
-    n_fit = int(data.fit.sum()) * len(CHANNELS)
-    added_k = len(param_names(name))
-    delta_bic = fit.bic - base.bic + (len(base.names) + added_k - len(keys)) * math.log(n_fit)
+    starts = []
+    n_trials = 0
+    for config in (base.config,) if origin is None else (base.config, origin):
+        grid = candidate_grid(name, config, data)
+        trials = [set_effect(config, make_effect(name, g)) for g in grid]
+        scores = [_score_config(c, data) for c in trials]
+        starts.append(trials[int(np.argmin(scores))])
+        n_trials += len(trials)
+    fits = [calibrate(start, data, max_iter=max_iter) for start in starts]
+    fit = min(fits, key=lambda f: f.bic)
+    fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + n_trials)
+    delta_bic = fit.bic - base.bic  # both penalise all their parameters
     excess = max(base.gap.score - 1.0, 1e-12)
     gain = (base.gap.score - fit.gap.score) / excess
     # Ablation: the re-fitted model with the effect taken out again. The effect itself must
@@ -705,7 +692,7 @@ def try_candidate(name: str, base: Fit, data: Measured, max_iter: int = 6) -> Ca
     )
 
 
-def _run_candidate(args: tuple[str, Fit, Measured]) -> Candidate:
+def _run_candidate(args: tuple[str, Fit, Measured, SimConfig | None]) -> Candidate:
     return try_candidate(*args)
 
 
@@ -754,10 +741,13 @@ def search(
             break
         # Control: the same model re-fitted once more, so that a candidate is credited only
         # with what its effect adds, not with what further fitting of the base would give.
-        control = calibrate(current.config, data, max_iter=6)
+        control = calibrate(current.config, data, max_iter=CANDIDATE_ITER)
         if control.bic < current.bic:
             current = replace(control, n_sims=control.n_sims + current.n_sims)
-        jobs = [(n, current, data) for n in names]
+        origin = config
+        for name in added:
+            origin = set_effect(origin, current.config.effect(name))
+        jobs = [(n, current, data, origin) for n in names]
         bar = tqdm(
             total=len(jobs),
             desc=f"candidates (round {len(rounds) + 1})",
@@ -781,7 +771,7 @@ def search(
                 f"  {c.name:17s} dBIC {c.delta_bic:12.1f} gain {c.gain:6.2f} own {c.own_gain:6.2f} "
                 f"held-out score {c.fit.gap.score:9.2f}{'  accepted' if c.accepted else ''}"
             )
-        # The candidate re-fits free only a few parameters; the best two accepted ones get a
+        # The candidate re-fits are short (CANDIDATE_ITER); the best two accepted ones get a
         # full calibration each and the better of those (held-out score) is named. (A hidden
         # viscous friction, for instance, is at first fitted better by a Coulomb torque.)
         finals = [(c, _recalibrate(config, added, c, data)) for c in accepted[:2]]
@@ -841,8 +831,3 @@ def run(
     else:
         verdict = "nothing_missing"
     return Result(verdict, start, final, added, rounds, warnings), data
-
-
-def param_names(name: str) -> tuple[str, ...]:
-    """Parameter names of effect ``name``."""
-    return tuple(f.name for f in fields(EFFECTS[name]))
