@@ -12,7 +12,8 @@ Cases run in ``--workers`` processes, one run per process.
 
 Usage::
 
-    python scripts/discrepancy_study.py [--seeds 5] [--duration 120] [--workers 2]
+    python scripts/discrepancy_study.py [--seeds 5] [--duration 120] [--workers 2] \
+        [--cases current_limit dead_time+current_limit null] [--json runs.jsonl]
 """
 
 from __future__ import annotations
@@ -123,15 +124,29 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, help="also write every run as JSON lines")
     parser.add_argument("--table", type=Path, help="only print the table of such a JSON file")
+    parser.add_argument(
+        "--cases",
+        nargs="+",
+        metavar="CASE",
+        help="run only these cases: an effect, a pair as EFFECT+EFFECT (of the study's pairs) "
+        "or 'null' (default: every effect, every pair and two null traces per seed)",
+    )
     args = parser.parse_args(argv)
     if args.table:
         print(table([json.loads(line) for line in args.table.read_text().splitlines()]))
         return 0
+    wanted = [*[(name,) for name in PLAUSIBLE], *PAIRS, ()]
+    if args.cases:
+        by_name = {"+".join(h) or "null": h for h in wanted}
+        unknown = [c for c in args.cases if c not in by_name]
+        if unknown:
+            parser.error(f"unknown case(s) {unknown}; expected some of {', '.join(by_name)}")
+        wanted = [by_name[c] for c in args.cases]
     cases = []
     for s in range(args.seeds):  # seed-major: a study stopped early still covers every case
-        cases += [((name,), s) for name in PLAUSIBLE]
-        cases += [(pair, s) for pair in PAIRS]
-        cases += [((), 2 * s), ((), 2 * s + 1)]
+        cases += [(hidden, s) for hidden in wanted if hidden]
+        if () in wanted:
+            cases += [((), 2 * s), ((), 2 * s + 1)]
     jobs = [(hidden, 100 + seed, args.duration) for hidden, seed in cases]
     rows = []
     load = os.getloadavg()[0]
