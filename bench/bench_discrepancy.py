@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import tempfile
 import time
 
@@ -29,6 +30,7 @@ def main() -> None:
     case = make_case(tuple(args.hidden), args.seed, duration_s=args.duration)
     load = os.getloadavg()[0]
     start = time.perf_counter()
+    cpu0 = _cpu_s()
     result, data = run(case.trace, case.start, workers=args.workers, progress=False)
     with tempfile.TemporaryDirectory() as out:
         write_report(result, data, out)
@@ -36,8 +38,16 @@ def main() -> None:
     print(
         f"{len(case.trace)} samples ({args.duration:.0f} s at 10 Hz), hidden "
         f"{', '.join(args.hidden) or 'nothing'}: named {', '.join(result.added) or 'nothing'} "
-        f"in {wall:.1f} s wall (load average at start {load:.2f}, target < 120 s)"
+        f"in {wall:.1f} s wall, {_cpu_s() - cpu0:.1f} s CPU ({args.workers} worker(s); load "
+        f"average {load:.2f} at start, {os.getloadavg()[0]:.2f} at end; target < 120 s wall)"
     )
+
+
+def _cpu_s() -> float:
+    """User + system CPU time of this process and its finished children (workers), s."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 if __name__ == "__main__":
