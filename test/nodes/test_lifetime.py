@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
 import pytest
 
@@ -76,3 +77,39 @@ def test_node_exits_promptly_on_ctrl_c() -> None:
         assert proc.wait(timeout=10) == 0
     finally:
         proc.kill()
+
+
+# A node whose destroy_node never returns, as rclpy's can after a Ctrl-C inside a callback.
+STUCK = textwrap.dedent(
+    """
+    import sys
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from thruster_fdd.nodes import common
+
+    class Stuck(Node):
+        def shutdown(self):
+            open(sys.argv[1], "w").write("shutdown hook ran")
+
+        def destroy_node(self):
+            while True:
+                pass
+
+    common.TEARDOWN_TIMEOUT_S = 1
+    rclpy.init()
+    node = Stuck("stuck")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    common.release_and_destroy(executor, [node])
+    """
+)
+
+
+def test_a_teardown_that_hangs_ends_the_process_after_its_hooks(tmp_path: Path) -> None:
+    marker = tmp_path / "hook"
+    proc = subprocess.run(
+        [sys.executable, "-c", STUCK, str(marker)], capture_output=True, timeout=30
+    )
+    assert proc.returncode == -signal.SIGALRM, proc.stderr[-2000:]
+    assert marker.read_text() == "shutdown hook ran"

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import struct
 import subprocess
 import sys
@@ -265,9 +266,17 @@ def run_replay(args: argparse.Namespace) -> int:
             timeouts = _missing_residuals(executor, bags, counters)
     finally:
         for proc in procs:
-            proc.send_signal(2)
+            proc.send_signal(signal.SIGINT)
         for proc in procs:
-            proc.wait(timeout=10)
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                print(
+                    f"thruster-fdd replay: node {proc.args[2]} did not stop; killed",
+                    file=sys.stderr,
+                )
+                proc.kill()
+                proc.wait()
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 from collections.abc import Callable, Iterable
 
@@ -74,13 +75,23 @@ def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
         rclpy.try_shutdown()
 
 
+TEARDOWN_TIMEOUT_S = 10
+"""Longest teardown of a node process after Ctrl-C, s; then the process is ended."""
+
+
 def release_and_destroy(executor: Executor, nodes: Iterable[Node]) -> None:
     """Shut ``executor`` down, then call each node's ``shutdown()`` (if any) and destroy it.
 
-    A Ctrl-C inside a callback leaves the executor's wait generator suspended while it holds
-    the node's handles; ``destroy_node`` would then spin forever waiting for them (seen: an
-    orphaned node at full CPU). Shutting the executor down drops that generator first.
+    For the end of a node process only. A Ctrl-C inside a callback can leave handles in use,
+    and rclpy's ``destroy_node`` then spins forever in C++ holding the GIL (seen: orphaned nodes
+    at full CPU for half an hour). Shutting the executor down first drops its wait generator,
+    which avoids most of it; for the rest an alarm ends the process ``TEARDOWN_TIMEOUT_S``
+    after teardown began. SIGALRM's default action needs no Python code, so it works where a
+    Python signal handler or thread could never run. The nodes' ``shutdown()`` hooks (files
+    closed, neutral commands sent) come before anything that can hang.
     """
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.alarm(TEARDOWN_TIMEOUT_S)
     executor.shutdown(timeout_sec=1.0)
     for node in nodes:
         shutdown = getattr(node, "shutdown", None)
