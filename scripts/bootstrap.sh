@@ -73,6 +73,24 @@ set +u
 . "$TFDD_ROOT/install/setup.bash"
 set -u
 
+# Compile the model kernels once per machine (numba caches the machine code in
+# __pycache__/), so that nodes started together do not each compile them (about 15 s).
+core_dir="$TFDD_ROOT/src/thruster_fdd/thruster_fdd/core"
+kernel_stamp="$core_dir/__pycache__/.tfdd-kernels-$(_tfdd_hash \
+    "$core_dir"/{features,diagnosis,nominal}.py \
+    "$TFDD_ROOT"/models/{nominal,classifier}/model_card.json "$req_stamp")"
+if [ ! -f "$kernel_stamp" ]; then
+    _tfdd_log "compiling the model kernels (about 25 s, once)"
+    if python -c "from thruster_fdd.core.diagnosis import ClassifierModel, NominalModel
+from thruster_fdd.core.paths import default_models_dir as d
+NominalModel.load(d() / 'nominal'), ClassifierModel.load(d() / 'classifier')"; then
+        rm -f "$core_dir"/__pycache__/.tfdd-kernels-*
+        touch "$kernel_stamp"
+    else
+        _tfdd_log "kernel warm-up failed: nodes compile them when they start"
+    fi
+fi
+
 # DDS stays on this machine (loopback and shared memory) unless the user says otherwise.
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"

@@ -16,6 +16,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from thruster_fdd_msgs.msg import Diagnosis, Residual
 
 from thruster_fdd.core.diagnosis import ClassifierModel, Decision, DiagnosisStream
@@ -27,6 +28,7 @@ from thruster_fdd.nodes.common import (
     publish_status,
     run,
 )
+from thruster_fdd.nodes.nominal_model import NominalModelNode
 
 UNKNOWN = "unknown"
 CONDITIONS = {
@@ -83,12 +85,26 @@ class ClassifierNode(Node):
         self._received = 0
         self._pub = self.create_publisher(Diagnosis, "fdd/diagnosis", RELIABLE_10)
         self._diag_pub = diagnostics_publisher(self)
-        self.create_subscription(Residual, "fdd/residual", self._on_residual, INPUT_QOS)
+        self._sub: Subscription | None = self.create_subscription(
+            Residual, "fdd/residual", self._on_residual, INPUT_QOS
+        )
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
         self.get_logger().info(
             f"thruster {self._id}: classifier {self._model.model_id} from {model_dir} "
             f"({len(self._model.class_names)} classes, window {self._model.window_s:g} s)"
         )
+
+    def take_residuals_from(self, source: NominalModelNode) -> None:
+        """Get residuals from ``source``, a nominal-model node in this process, not from DDS.
+
+        Replaces the ``fdd/residual`` subscription by intra-process delivery (the container
+        does this when it hosts both stages of a thruster): the hop from residual to decision
+        no longer waits for DDS and the executor (``bench/bench_latency.py``).
+        """
+        if self._sub is not None:
+            self.destroy_subscription(self._sub)
+            self._sub = None
+        source.add_local_subscriber(self._on_residual)
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

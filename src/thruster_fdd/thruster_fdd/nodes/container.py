@@ -2,8 +2,9 @@
 
 ``thruster-fdd up`` runs both model stages (``nominal_model``, ``classifier``) of all thrusters
 in one container, so torch and the model code are loaded once, not once per thruster and stage
-(about 300 MB each), and residuals reach the classifier without a hop between processes — the
-ROS composition idea with plain rclpy. Every node keeps its own namespace ``/thruster/<id>``,
+(about 300 MB each), and each thruster's classifier gets its residuals straight from its
+nominal model in the process (intra-process delivery, ``--no-intra-process`` turns it off) —
+the ROS composition idea with plain rclpy. Every node keeps its own namespace ``/thruster/<id>``,
 its parameters and its parameter services (``thruster-fdd reload`` works the same).
 
 Usage: ``python -m thruster_fdd.nodes.container KIND [KIND ...] --thrusters t0 t1
@@ -33,7 +34,9 @@ KINDS = {
 
 
 def _value(text: str) -> object:
-    """Parse a ``-p`` value the way ROS parameter overrides read numbers."""
+    """Parse a ``-p`` value the way ROS parameter overrides read booleans and numbers."""
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
     for kind in (int, float):
         try:
             return kind(text)
@@ -69,6 +72,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("kinds", nargs="+", choices=sorted(KINDS), metavar="KIND")
     parser.add_argument("--thrusters", nargs="+", required=True, metavar="ID")
     parser.add_argument(
+        "--no-intra-process",
+        dest="intra_process",
+        action="store_false",
+        help="classifiers subscribe to fdd/residual over DDS instead of taking the residuals "
+        "of the nominal model of their thruster in this process",
+    )
+    parser.add_argument(
         "-p", dest="params", action="append", default=[], metavar="[KIND:]NAME=VALUE"
     )
     args = parser.parse_args(argv)
@@ -86,11 +96,14 @@ def main(argv: list[str] | None = None) -> None:
     nodes = []
     try:
         for tid in args.thrusters:
+            made = {}
             for kind, node_cls in classes.items():
                 overrides = [Parameter("thruster_id", value=tid), *params[kind]]
-                node = node_cls(namespace=f"/thruster/{tid}", parameter_overrides=overrides)
-                nodes.append(node)
-                executor.add_node(node)
+                made[kind] = node_cls(namespace=f"/thruster/{tid}", parameter_overrides=overrides)
+                nodes.append(made[kind])
+                executor.add_node(made[kind])
+            if args.intra_process and {"nominal_model", "classifier"} <= made.keys():
+                made["classifier"].take_residuals_from(made["nominal_model"])
         executor.spin()
     except ValueError as exc:
         print(f"container {' '.join(args.kinds)}: cannot start: {exc}", file=sys.stderr)

@@ -11,6 +11,7 @@ old one keeps running.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -80,10 +81,21 @@ class NominalModelNode(Node):
         self._window_published = 0
         self._last_reason = ""
         self._step_s: list[float] = []
+        self._local_subscribers: list[Callable[[Residual], None]] = []
         self.get_logger().info(
             f"thruster {self._id}: model {self._model.model_id} from {model_dir} "
             f"({self._model.card.mode}, {1.0 / self._model.sample_time_s:g} Hz)"
         )
+
+    def add_local_subscriber(self, callback: Callable[[Residual], None]) -> None:
+        """Also hand every published residual to ``callback``, in this process.
+
+        Intra-process delivery, as rclcpp does it for composed nodes: a node in the same
+        process gets the message object without a trip through DDS and the executor, and
+        before the DDS write, so the diagnosis does not wait for it. ``fdd/residual`` still
+        goes out on DDS for every other subscriber.
+        """
+        self._local_subscribers.append(callback)
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for param in params:
@@ -124,6 +136,8 @@ class NominalModelNode(Node):
             model_id=self._model.model_id,
         )
         res.header = msg.header
+        for callback in self._local_subscribers:
+            callback(res)
         self._pub.publish(res)
         self._published += 1
 
