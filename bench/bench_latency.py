@@ -33,6 +33,13 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz")
     parser.add_argument("--seconds", type=float, default=60.0, help="measured interval, s")
     parser.add_argument("--warmup", type=float, default=30.0, help="first window fills, s")
+    parser.add_argument(
+        "--observer-nice",
+        type=int,
+        default=0,
+        help="niceness of this listening process once up has started (the published latencies "
+        "use DDS source timestamps, so they do not depend on when the listener runs)",
+    )
     args = parser.parse_args()
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     up = subprocess.Popen(
@@ -42,6 +49,7 @@ def main() -> None:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )  # fmt: skip
+    os.nice(args.observer_nice)
     rclpy.init()
     node = rclpy.create_node("bench_latency")
     stages = ("telemetry", "residual", "diagnosis")
