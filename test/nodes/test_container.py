@@ -52,10 +52,11 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
     from thruster_fdd.core.scenario import run_scenario
+    from thruster_fdd.nodes.nominal_model import RESIDUAL_QOS
 
     ns = "/thruster/ct"
     cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", "nominal_model", "classifier"]
@@ -68,14 +69,9 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-    residual_qos = QoSProfile(
-        depth=1000,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
     residuals: list[Residual] = []
     diagnoses: list[Diagnosis] = []
-    node.create_subscription(Residual, f"{ns}/fdd/residual", residuals.append, residual_qos)
+    node.create_subscription(Residual, f"{ns}/fdd/residual", residuals.append, RESIDUAL_QOS)
     node.create_subscription(Diagnosis, f"{ns}/fdd/diagnosis", diagnoses.append, reliable)
     pub = node.create_publisher(EscTelemetry, f"{ns}/esc/telemetry", reliable)
 

@@ -113,3 +113,25 @@ def test_a_teardown_that_hangs_ends_the_process_after_its_hooks(tmp_path: Path) 
     )
     assert proc.returncode == -signal.SIGALRM, proc.stderr[-2000:]
     assert marker.read_text() == "shutdown hook ran"
+
+
+def test_stop_children_kills_and_names_a_child_that_ignores_ctrl_c() -> None:
+    from thruster_fdd.lifetime import stop_children
+
+    polite = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    stubborn = subprocess.Popen(
+        [sys.executable, "-c", "import signal, time; signal.signal(signal.SIGINT, "
+         "signal.SIG_IGN); print('ready', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        assert stubborn.stdout is not None
+        assert stubborn.stdout.readline() == b"ready\n"
+        killed = stop_children({"polite": polite, "stubborn": stubborn}, timeout_s=2.0)
+        assert killed == ["stubborn"]
+        assert polite.returncode != 0
+        assert stubborn.returncode == -signal.SIGKILL
+    finally:
+        for proc in (polite, stubborn):
+            proc.kill()
+            proc.wait()

@@ -9,7 +9,6 @@ then it prints a live table until Ctrl-C or ``--duration``, and stops every chil
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import signal
@@ -25,7 +24,7 @@ from typing import Any
 import yaml
 
 from thruster_fdd.core.data import CLASS_NAMES
-from thruster_fdd.lifetime import child_env, stop_with_parent
+from thruster_fdd.lifetime import child_env, stop_children, stop_with_parent
 
 DESCRIPTION = (
     "Start the node set. Simulated thrusters (the default) each get a microcontroller emulator "
@@ -226,19 +225,6 @@ def _stage_commands(ids: list[str], models: Path) -> dict[str, list[str]]:
     return {"models": cmd}
 
 
-def _stop_children(children: dict[str, subprocess.Popen[bytes]], timeout_s: float = 5.0) -> None:
-    for proc in children.values():
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + timeout_s
-    for proc in children.values():
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-
-
 def run_up(args: argparse.Namespace) -> int:
     """Start the node set, print the live table, stop everything on Ctrl-C or --duration."""
     import rclpy
@@ -286,7 +272,7 @@ def run_up(args: argparse.Namespace) -> int:
             commands |= _commands(plan, rate, run_dir)
         for name, cmd in commands.items():
             log = (run_dir / f"{name}.log").open("wb")
-            # Own process group: a Ctrl-C reaches children only through _stop_children,
+            # Own process group: a Ctrl-C reaches children only through stop_children,
             # so they stop in order after the table's last print.
             children[name] = subprocess.Popen(
                 cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=child_env()
@@ -322,7 +308,7 @@ def run_up(args: argparse.Namespace) -> int:
         print(f"\nfinal:\n{monitor.table()}")
         return 0
     finally:
-        _stop_children(children)
+        stop_children(children, timeout_s=5.0)
         executor.shutdown()
         monitor.destroy_node()
         rclpy.try_shutdown()

@@ -9,10 +9,14 @@ dies. Linux only (``prctl``); elsewhere it does nothing.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import signal
+import subprocess
 import sys
+import time
+from collections.abc import Mapping
 
 PARENT_PID_ENV = "THRUSTER_FDD_PARENT_PID"
 _PR_SET_PDEATHSIG = 1
@@ -34,3 +38,26 @@ def stop_with_parent() -> None:
     # The parent may have died before prctl took effect: then we were re-parented already.
     if os.getppid() != int(parent):
         os.kill(os.getpid(), signal.SIGINT)
+
+
+def stop_children(children: Mapping[str, subprocess.Popen[bytes]], timeout_s: float) -> list[str]:
+    """SIGINT every running child, wait up to ``timeout_s`` in all, kill what still runs.
+
+    Returns
+    -------
+    list of str
+        The names of the children that had to be killed.
+    """
+    for proc in children.values():
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + timeout_s
+    killed = []
+    for name, proc in children.items():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+            killed.append(name)
+    return killed

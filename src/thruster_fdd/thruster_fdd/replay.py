@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import struct
 import subprocess
 import sys
@@ -25,7 +24,7 @@ from collections import deque
 from pathlib import Path
 
 from thruster_fdd.core.replay import ReplayCheck, ThrusterBag, check, load_bag
-from thruster_fdd.lifetime import child_env
+from thruster_fdd.lifetime import child_env, stop_children
 
 DESCRIPTION = (
     "Replay the telemetry of an MCAP recording through freshly started model nodes "
@@ -122,8 +121,9 @@ def _missing_residuals(
     return missing()
 
 
-def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> list[subprocess.Popen[bytes]]:
-    procs = []
+def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> dict[str, subprocess.Popen[bytes]]:
+    """The model nodes of every thruster of ``bags``, by name ``<thruster>/<node>``."""
+    procs = {}
     for bag in bags:
         for node, folder in (("nominal_model", "nominal"), ("classifier", "classifier")):
             if not (models / folder / "model_card.json").is_file():
@@ -133,7 +133,9 @@ def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> list[subprocess
             cmd += ["-p", f"thruster_id:={bag.thruster_id}", "-p", f"model_dir:={models / folder}"]
             if node == "nominal_model":
                 cmd += ["-p", "reliable_telemetry:=true"]
-            procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, env=child_env()))
+            procs[f"{bag.thruster_id}/{node}"] = subprocess.Popen(
+                cmd, stdout=subprocess.DEVNULL, env=child_env()
+            )
     return procs
 
 
@@ -265,18 +267,8 @@ def run_replay(args: argparse.Namespace) -> int:
         if with_classifier and not stalls:
             timeouts = _missing_residuals(executor, bags, counters)
     finally:
-        for proc in procs:
-            proc.send_signal(signal.SIGINT)
-        for proc in procs:
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                print(
-                    f"thruster-fdd replay: node {proc.args[2]} did not stop; killed",
-                    file=sys.stderr,
-                )
-                proc.kill()
-                proc.wait()
+        for name in stop_children(procs, timeout_s=15.0):
+            print(f"thruster-fdd replay: node {name} did not stop; killed", file=sys.stderr)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)

@@ -375,7 +375,7 @@ class ClassifierModel:
                 f"({len(CLASS_NAMES)},) class logits"
             )
         layers = _mlp_layers(state, prog_path)
-        _check_numpy_path(module, layers, center, scale, prog_path)
+        _check_compiled_path(module, layers, center, scale, prog_path)
         model = cls(card, layers)
         # Compile (or load from numba's cache) every kernel of a decision now, not in the middle
         # of the first window of a running node.
@@ -388,16 +388,9 @@ class ClassifierModel:
         x = np.array(features, dtype=float, ndmin=2)
         return np.where(np.isnan(x), self._fill, x)
 
-    def distance(self, features: np.ndarray) -> np.ndarray:
-        """Distance (B,) of filled raw features (B, F) to the nearest class (standardised RMS)."""
-        return _class_distance(self.fill(features), *self._distance_args)
-
-    def logits(self, features: np.ndarray) -> np.ndarray:
-        """Uncalibrated logits (B, C) of raw features (B, F) (NaN filled here)."""
-        return _mlp_forward(self._layers, self.fill(features), self._center, self._scale)
-
     def predict_proba(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Calibrated probabilities (B, C) and distance to the nearest class (B,)."""
+        """Calibrated probabilities (B, C) and the standardised RMS distance (B,) to the nearest
+        class of raw features (B, F) (NaN filled here)."""
         x = self.fill(features)
         logits = _mlp_forward(self._layers, x, self._center, self._scale)
         return _softmax(logits / self.card.temperature), _class_distance(x, *self._distance_args)
@@ -476,7 +469,7 @@ def _class_distance(
     return out
 
 
-def _check_numpy_path(
+def _check_compiled_path(
     module: Any,
     layers: tuple[tuple[np.ndarray, np.ndarray], ...],
     center: np.ndarray,
