@@ -1,11 +1,18 @@
-"""Shared pytest fixtures: a real rclpy context on this machine's own DDS domain."""
+"""Shared pytest fixtures: a real rclpy context on this machine's own DDS domain, and the
+repository's scripts as modules."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
-from collections.abc import Iterator
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from types import ModuleType
 
 import pytest
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -26,3 +33,18 @@ def ros_context() -> Iterator[object]:
         yield context
     finally:
         rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture
+def load_script() -> Callable[[str], ModuleType]:
+    """Import ``scripts/<name>.py`` as module ``name`` (registered in ``sys.modules``, so the
+    script's own imports of its siblings find it)."""
+
+    def load(name: str) -> ModuleType:
+        spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        return module
+
+    return load

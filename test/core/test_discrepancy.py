@@ -14,7 +14,9 @@ import pytest
 from thruster_fdd.cli import main
 from thruster_fdd.core.data import write_trace_csv
 from thruster_fdd.core.discrepancy import (
+    BASE_RANGE,
     Measured,
+    calibrate,
     noise_free,
     prepare,
     run,
@@ -25,6 +27,9 @@ from thruster_fdd.core.discrepancy_cases import PLAUSIBLE, make_case
 from thruster_fdd.core.physics import simulate
 from thruster_fdd.core.signals import make_signal
 from thruster_fdd.core.simconfig import load_config
+
+REPO = Path(__file__).resolve().parents[2]
+T200_DATA = REPO.parent / "shared" / "data" / "t200"
 
 DURATION_S = 60.0
 """CI trace length, s (the study, scripts/discrepancy_study.py, runs longer traces)."""
@@ -149,6 +154,59 @@ def test_prepare_splits_and_estimates_noise() -> None:
     # t100 noise: 15 rpm, 0.05 A (plus quantisation)
     assert 10.0 <= data.sigma["rpm"] <= 25.0
     assert 0.03 <= data.sigma["current"] <= 0.08
+
+
+def test_prepare_despikes_glitches_not_responses() -> None:
+    """A telemetry spike on a hold or a ramp is replaced; a one-sample rest at neutral between
+    two steps (the T200 bench log's layout) is kept: the command itself bends there."""
+    config, trace = _short_trace()
+    rpm, command = trace.rpm.copy(), trace.command.copy()
+    hold = int(np.flatnonzero(np.abs(np.diff(command)) == 0.0)[50]) + 1
+    rpm[hold] += 3000.0
+    rest = 300
+    command[rest - 20 : rest] = 0.8
+    command[rest] = 0.0
+    command[rest + 1 : rest + 20] = -0.8
+    rpm[rest - 20 : rest] = 3000.0
+    rpm[rest] = 0.0
+    rpm[rest + 1 : rest + 20] = -3000.0
+    ramp = 400
+    command[ramp - 10 : ramp + 10] = np.linspace(0.2, 0.6, 20)
+    rpm[ramp] += 3000.0
+    data = prepare(replace(trace, rpm=rpm, command=command), config)
+    assert abs(data.rpm[hold] - trace.rpm[hold]) < 100.0
+    assert abs(data.rpm[ramp] - rpm[ramp] + 3000.0) < 100.0
+    assert data.rpm[rest] == 0.0
+
+
+def test_base_parameters_stay_near_the_anchor() -> None:
+    """Base parameters are bounded around the user's start (the anchor), not around each
+    calibration's start, so successive rounds cannot walk them away."""
+    t100 = load_config("t100")
+    truth = replace(t100, params=replace(t100.params, r_ohm=0.2 * t100.params.r_ohm))
+    t, u = make_signal("multilevel", 60.0, 10.0, seed=0)
+    data = prepare(simulate(truth, t, u, seed=0), t100)
+    low = t100.params.r_ohm / BASE_RANGE
+    edge = replace(t100, params=replace(t100.params, r_ohm=low))
+    keys = ("params.r_ohm",)
+    anchored = calibrate(edge, data, keys, max_iter=6, anchor=t100)
+    assert anchored.config.params.r_ohm >= low * (1.0 - 1e-9)
+    drifting = calibrate(edge, data, keys, max_iter=6)
+    assert drifting.config.params.r_ohm < 0.9 * low
+
+
+@pytest.mark.skipif(not T200_DATA.is_dir(), reason=f"T200 measurements not found at {T200_DATA}")
+def test_t200_bench_data_names_the_deadband(load_script) -> None:
+    """Real data: all six T200 sheets as a step trace, the t200 preset without its deadband.
+    The deadband is named, its width within 5 % of the preset's steady-state calibration
+    (scripts/calibrate_t200.py, an independent fit of the same sheets), and nothing else."""
+    trace = load_script("t200_to_trace").steps_trace(T200_DATA)
+    t200 = load_config("t200")
+    result, _ = run(trace, t200, ["deadband"], workers=1, progress=False)
+    assert result.added == ("deadband",)
+    width = result.final.config.effect("deadband").width
+    assert abs(width / t200.effect("deadband").width - 1.0) <= 0.05
+    assert result.final.gap.rpm_rmse <= 0.7 * result.start.gap.rpm_rmse
 
 
 def test_model_simulation_equals_simulator() -> None:

@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import itertools
-import sys
 import time
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -335,19 +332,9 @@ def test_simulate_is_fast() -> None:
     assert time.perf_counter() - start < 0.6  # 1000x real time with margin for slow CI
 
 
-def _calibration_module() -> ModuleType:
-    spec = importlib.util.spec_from_file_location(
-        "calibrate_t200", REPO / "scripts" / "calibrate_t200.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["calibrate_t200"] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.skipif(not T200_DATA.is_dir(), reason=f"T200 measurements not found at {T200_DATA}")
-def test_t200_preset_fits_measurements() -> None:
-    cal = _calibration_module()
+def test_t200_preset_fits_measurements(load_script) -> None:
+    cal = load_script("calibrate_t200")
     config = load_config("t200")
     sheets = cal.load_sheets(T200_DATA)
     assert [s.voltage for s in sheets] == [10.0, 12.0, 14.0, 16.0, 18.0, 20.0]

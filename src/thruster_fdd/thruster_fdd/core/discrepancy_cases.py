@@ -7,7 +7,7 @@ plausible values; the model starts from the t100 preset without them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -16,7 +16,13 @@ from thruster_fdd.core.discrepancy import start_config
 from thruster_fdd.core.effects import make_effect
 from thruster_fdd.core.physics import simulate
 from thruster_fdd.core.signals import make_signal
-from thruster_fdd.core.simconfig import SimConfig, load_config, perturb_unit, set_effect
+from thruster_fdd.core.simconfig import (
+    Measurement,
+    SimConfig,
+    load_config,
+    perturb_unit,
+    set_effect,
+)
 
 PLAUSIBLE: dict[str, tuple[str, float, float]] = {
     "dead_time": ("delay_s", 0.3, 1.0),
@@ -67,12 +73,17 @@ class Case:
         Hidden effect -> its parameters in the simulated unit (after spread).
     signal : str
         The command signal (one of ``SIGNALS``).
+    clean : Trace
+        The same unit's response to the same command without measurement noise, outliers,
+        quantisation or reporting floor: what a perfect model would output. Measured against
+        it, a model's error has no noise floor (the study's "model error" column).
     """
 
     trace: Trace
     start: SimConfig
     hidden: dict[str, dict[str, float]]
-    signal: str = "multilevel"
+    signal: str
+    clean: Trace
 
 
 ABSENT: dict[str, tuple[str, ...]] = {
@@ -166,6 +177,8 @@ def make_case(
         signal = next((EXCITING[n] for n in hidden if n in EXCITING), "multilevel")
     t, command = case_signal(signal, duration_s, rate_hz, seed)
     trace = simulate(truth, t, command, seed=seed)
+    # The unit depends on the seed alone (perturb_unit), not on the measurement model.
+    clean = simulate(replace(truth, measurement=Measurement()), t, command, seed=seed)
     unit = perturb_unit(truth, seed)
     start, _ = start_config(base, hidden)
     values = {}
@@ -174,4 +187,4 @@ def make_case(
         if effect is None:
             raise ValueError(f"hidden effect {name!r} missing from the simulated unit")
         values[name] = effect.params()
-    return Case(trace=trace, start=start, hidden=values, signal=signal)
+    return Case(trace=trace, start=start, hidden=values, signal=signal, clean=clean)

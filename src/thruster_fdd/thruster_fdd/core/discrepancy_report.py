@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from thruster_fdd.core.discrepancy import (
+    MIN_GAIN,
+    STRUCTURED,
     Fit,
     Measured,
     Result,
@@ -295,6 +297,20 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         f"**Verdict: `{rep['verdict']}`**"
         + (f" — missing: {', '.join(f'`{n}`' for n in result.added)}" if result.added else ""),
         "",
+    ]
+    if result.added and result.final.gap.score > STRUCTURED:
+        why = (
+            "no further candidate of the vocabulary explains it"
+            if result.rounds[-1].chosen is None
+            else f"the search stopped after {len(result.rounds)} rounds"
+        )
+        lines += [
+            f"The residual after them is still structured (held-out score "
+            f"{result.final.gap.score:.1f} > {STRUCTURED:g}) and {why}: see where the model "
+            f"after disagrees, below.",
+            "",
+        ]
+    lines += [
         f"Samples: {len(data.t)} over {data.t[-1]:.0f} s; fit on {int(data.fit.sum())}, "
         f"held out {int(data.held.sum())} (interleaved blocks). Noise estimate: "
         f"rpm {data.sigma['rpm']:.3g}, current {data.sigma['current']:.3g} A, "
@@ -329,12 +345,16 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         lines += [
             f"## Round {k}: candidates",
             "",
-            "| effect | ΔBIC (fit) | held-out gain | held-out score | accepted |",
-            "|---|---|---|---|---|",
+            f"Accepted: ΔBIC < 0 on the fit samples, and a held-out gain and an own gain of at "
+            f"least {MIN_GAIN:g} (gain: the fraction of the excess over noise removed; own gain: "
+            f"what taking the effect out of the re-fit again costs on the fit samples).",
+            "",
+            "| effect | ΔBIC (fit) | held-out gain | own gain | held-out score | accepted |",
+            "|---|---|---|---|---|---|",
         ]
         for c in sorted(rnd.candidates, key=lambda c: c.fit.gap.score):
             lines.append(
-                f"| `{c.name}` | {c.delta_bic:.1f} | {c.gain:.2f} | "
+                f"| `{c.name}` | {c.delta_bic:.1f} | {c.gain:.2f} | {c.own_gain:.2f} | "
                 f"{c.fit.gap.score:.2f} | {'yes' if c.accepted else 'no'} |"
             )
         lines.append("")
