@@ -6,12 +6,12 @@ import json
 import shutil
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from probe import Probe, start_node, stop
 
 from thruster_fdd.core.data import CLASS_NAMES
 from thruster_fdd.core.nominal import NominalModel
@@ -27,15 +27,13 @@ NS = "/thruster/cl"
 
 @dataclass
 class Rig:
-    executor: object
+    probe: Probe
     pub: object
     diagnoses: list
     statuses: list
 
     def spin(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.01)  # type: ignore[attr-defined]
+        self.probe.spin(seconds)
 
     def feed(self, condition: str, t0: float, model_id: str | None = None) -> None:
         """Publish the residuals of a simulated thruster (90 s at 10 Hz)."""
@@ -70,60 +68,35 @@ class Rig:
 
 @pytest.fixture(scope="module")
 def rig() -> Iterator[Rig]:
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, Residual
 
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "thruster_fdd.nodes.classifier",
-            "--ros-args",
-            "-r",
-            f"__ns:={NS}",
-            "-p",
-            "thruster_id:=cl",
-            "-p",
-            "stale_after_s:=2.0",
-        ]
-    )
-    context = Context()
-    rclpy.init(context=context)
-    node = Node("classifier_probe", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    reliable = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
-    # fdd/residual is transient-local (README): the classifier only matches such publishers.
-    residual_qos = QoSProfile(
-        depth=500,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
-    r = Rig(executor, node.create_publisher(Residual, f"{NS}/fdd/residual", residual_qos), [], [])
-    node.create_subscription(Diagnosis, f"{NS}/fdd/diagnosis", r.diagnoses.append, reliable)
-    node.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: r.statuses.extend(s for s in m.status if s.name == f"{NS}/classifier"),
-        reliable,
-    )
-    try:
-        deadline = time.monotonic() + 30
-        while r.pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-            r.spin(0.1)
-        assert r.pub.get_subscription_count() > 0, "the classifier never subscribed"
-        yield r
-    finally:
-        proc.send_signal(2)
-        proc.wait(timeout=10)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    proc = start_node("classifier", NS, {"thruster_id": "cl", "stale_after_s": 2.0})
+    with Probe("classifier_probe") as probe:
+        node = probe.node
+        reliable = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+        # fdd/residual is transient-local (README): the classifier only matches such publishers.
+        residual_qos = QoSProfile(
+            depth=500,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        pub = node.create_publisher(Residual, f"{NS}/fdd/residual", residual_qos)
+        r = Rig(probe, pub, [], [])
+        node.create_subscription(Diagnosis, f"{NS}/fdd/diagnosis", r.diagnoses.append, reliable)
+        node.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: r.statuses.extend(s for s in m.status if s.name == f"{NS}/classifier"),
+            reliable,
+        )
+        try:
+            subscribed = probe.spin_until(lambda: pub.get_subscription_count() > 0, 30.0, 0.1)
+            assert subscribed, "the classifier never subscribed"
+            yield r
+        finally:
+            stop(proc)
 
 
 def test_a_fouled_thruster_is_diagnosed_with_an_error_status(rig: Rig) -> None:

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
-import time
 
 import pytest
+from probe import Probe, stop
 
 from thruster_fdd.nodes.container import parse_parameters
 
@@ -48,16 +47,13 @@ def test_booleans_are_parsed() -> None:
 def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     """Telemetry in, residuals out on DDS, diagnoses out; intra-process: the classifier takes
     the residuals from its nominal model, with no fdd/residual subscription of its own."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
     from thruster_fdd.core.scenario import run_scenario
     from thruster_fdd.nodes.nominal_model import RESIDUAL_QOS
 
+    trace = run_scenario("t100", "broken_blade_2", signal="sine:0.02", duration_s=40, seed=4)
     ns = "/thruster/ct"
     cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", "nominal_model", "classifier"]
     cmd += ["--thrusters", "ct", "-p", "nominal_model:reliable_telemetry=true"]
@@ -66,54 +62,42 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     cmd += ["-p", "classifier:stale_after_s=60.0"]
     cmd += [] if intra_process else ["--no-intra-process"]
     proc = subprocess.Popen(cmd)
-    context = Context()
-    rclpy.init(context=context)
-    node = Node("container_probe", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-    residuals: list[Residual] = []
-    diagnoses: list[Diagnosis] = []
-    node.create_subscription(Residual, f"{ns}/fdd/residual", residuals.append, RESIDUAL_QOS)
-    node.create_subscription(Diagnosis, f"{ns}/fdd/diagnosis", diagnoses.append, reliable)
-    pub = node.create_publisher(EscTelemetry, f"{ns}/esc/telemetry", reliable)
-
-    def spin(seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.01)
-
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (
-            pub.get_subscription_count() and node.count_publishers(f"{ns}/fdd/diagnosis")
-        ):
-            spin(0.1)
-        assert pub.get_subscription_count(), "the container never subscribed"
-        spin(1.0)
-        trace = run_scenario("t100", "broken_blade_2", signal="sine:0.02", duration_s=40, seed=4)
-        for i in range(len(trace)):
-            msg = EscTelemetry(
-                thruster_id="ct",
-                command=float(trace.command[i]),
-                voltage_v=float(trace.voltage[i]),
-                rpm=float(trace.rpm[i]),
-                current_a=float(trace.current[i]),
-                sequence=i,
+    with Probe("container_probe") as probe:
+        node = probe.node
+        reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        residuals: list[Residual] = []
+        diagnoses: list[Diagnosis] = []
+        node.create_subscription(Residual, f"{ns}/fdd/residual", residuals.append, RESIDUAL_QOS)
+        node.create_subscription(Diagnosis, f"{ns}/fdd/diagnosis", diagnoses.append, reliable)
+        pub = node.create_publisher(EscTelemetry, f"{ns}/esc/telemetry", reliable)
+        try:
+            probe.spin_until(
+                lambda: bool(
+                    pub.get_subscription_count() and node.count_publishers(f"{ns}/fdd/diagnosis")
+                ),
+                60.0,
+                0.1,
             )
-            sec, nanosec = divmod((10_000 + i) * 100_000_000, 10**9)  # 10 Hz from 1000 s
-            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
-            pub.publish(msg)
-            spin(0.003)
-        spin(3.0)
-        subscribers = node.get_subscriptions_info_by_topic(f"{ns}/fdd/residual")
-        classifier_subscribed = any(s.node_name == "classifier" for s in subscribers)
-    finally:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=20)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+            assert pub.get_subscription_count(), "the container never subscribed"
+            probe.spin(1.0)
+            for i in range(len(trace)):
+                msg = EscTelemetry(
+                    thruster_id="ct",
+                    command=float(trace.command[i]),
+                    voltage_v=float(trace.voltage[i]),
+                    rpm=float(trace.rpm[i]),
+                    current_a=float(trace.current[i]),
+                    sequence=i,
+                )
+                sec, nanosec = divmod((10_000 + i) * 100_000_000, 10**9)  # 10 Hz from 1000 s
+                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+                pub.publish(msg)
+                probe.spin(0.003)
+            probe.spin(3.0)
+            subscribers = node.get_subscriptions_info_by_topic(f"{ns}/fdd/residual")
+            classifier_subscribed = any(s.node_name == "classifier" for s in subscribers)
+        finally:
+            stop(proc, 20.0)
     assert len(residuals) == len(trace)
     assert classifier_subscribed is not intra_process
     assert len(diagnoses) >= 10

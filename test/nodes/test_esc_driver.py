@@ -8,7 +8,6 @@ probe node here publishes commands and collects telemetry and /diagnostics.
 from __future__ import annotations
 
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -16,6 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pytest
+from probe import Probe, start_node, stop
 
 from thruster_fdd.core import emulator as emu
 from thruster_fdd.core.physics import ThrusterSimulator, load_config
@@ -38,18 +38,13 @@ class Rig:
 
     emulator: emu.BridgeEmulator
     driver: subprocess.Popen[bytes]
-    executor: object
+    probe: Probe
     command_pub: object
     telemetry: list = field(default_factory=list)
     diagnostics: list = field(default_factory=list)
 
     def spin_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.02)  # type: ignore[attr-defined]
-            if predicate():
-                return True
-        return False
+        return self.probe.spin_until(predicate, timeout_s, 0.02)
 
     def spin_for(self, seconds: float) -> None:
         self.spin_until(lambda: False, seconds)
@@ -65,11 +60,7 @@ class Rig:
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
@@ -77,48 +68,34 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=3)
     emulator = emu.BridgeEmulator(simulator, link_path, emu.EmulatorSettings(rate_hz=RATE_HZ))
     emulator.open()
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop,), daemon=True)
+    stop_event = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop_event,), daemon=True)
     thread.start()
 
-    driver = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "thruster_fdd.nodes.esc_driver",
-            "--ros-args",
-            "-r",
-            f"__ns:={NS}",
-            "-p",
-            "thruster_id:=it",
-            "-p",
-            f"port:={link_path}",
-            "-p",
-            f"rate_hz:={RATE_HZ}",
-            "-p",
-            "diagnostics_period_s:=0.5",
-            "-p",
-            "command_timeout_s:=0.5",
-            "-p",
-            "max_command_rate_per_s:=0.0",
-        ]
+    driver = start_node(
+        "esc_driver",
+        NS,
+        {
+            "thruster_id": "it",
+            "port": link_path,
+            "rate_hz": RATE_HZ,
+            "diagnostics_period_s": 0.5,
+            "command_timeout_s": 0.5,
+            "max_command_rate_per_s": 0.0,
+        },
     )
-    context = Context()
-    rclpy.init(context=context)
-    node = Node("probe", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    probe = Probe("probe")
     reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
     r = Rig(
         emulator,
         driver,
-        executor,
-        node.create_publisher(ThrusterCommand, f"{NS}/esc/command", reliable),
+        probe,
+        probe.node.create_publisher(ThrusterCommand, f"{NS}/esc/command", reliable),
     )
-    node.create_subscription(
+    probe.node.create_subscription(
         EscTelemetry, f"{NS}/esc/telemetry", r.telemetry.append, qos_profile_sensor_data
     )
-    node.create_subscription(
+    probe.node.create_subscription(
         DiagnosticArray,
         "/diagnostics",
         lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == f"{NS}/esc_driver"),
@@ -128,16 +105,10 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         assert r.spin_until(lambda: len(r.telemetry) >= 20, 20.0), "no telemetry from driver"
         yield r
     finally:
-        driver.send_signal(2)
-        try:
-            driver.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            driver.kill()
-        stop.set()
+        stop(driver)
+        stop_event.set()
         thread.join(timeout=5)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        probe.close()
 
 
 def test_telemetry_flows_at_the_bridge_rate(rig: Rig) -> None:
@@ -259,10 +230,6 @@ def test_driver_survived_everything(rig: Rig) -> None:
 
 def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:
     """The driver's second protocol: KISS/BLHeli_32 telemetry from the same emulator."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
     from thruster_fdd_msgs.msg import EscTelemetry
 
@@ -272,46 +239,22 @@ def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:
         simulator, link_path, emu.EmulatorSettings(rate_hz=RATE_HZ, protocol="kiss")
     )
     emulator.open()
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop,), daemon=True)
+    stop_event = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop_event,), daemon=True)
     thread.start()
-    driver = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "thruster_fdd.nodes.esc_driver",
-            "--ros-args",
-            "-r",
-            "__ns:=/thruster/kiss",
-            "-p",
-            f"port:={link_path}",
-            "-p",
-            "protocol:=kiss",
-            "-p",
-            "thruster_id:=kiss",
-        ]
-    )
-    context = Context()
-    rclpy.init(context=context)
-    node = Node("kiss_probe", context=context)
+    params = {"port": link_path, "protocol": "kiss", "thruster_id": "kiss"}
+    driver = start_node("esc_driver", "/thruster/kiss", params)
     received: list[EscTelemetry] = []
-    node.create_subscription(
-        EscTelemetry, "/thruster/kiss/esc/telemetry", received.append, qos_profile_sensor_data
-    )
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    try:
-        deadline = time.monotonic() + 20
-        while len(received) < 20 and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        driver.send_signal(2)
-        driver.wait(timeout=10)
-        stop.set()
-        thread.join(timeout=5)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    with Probe("kiss_probe") as probe:
+        probe.node.create_subscription(
+            EscTelemetry, "/thruster/kiss/esc/telemetry", received.append, qos_profile_sensor_data
+        )
+        try:
+            probe.spin_until(lambda: len(received) >= 20, 20.0, 0.05)
+        finally:
+            stop(driver)
+            stop_event.set()
+            thread.join(timeout=5)
     assert len(received) >= 20
     assert all(m.status & EscTelemetry.NO_COMMAND_ECHO for m in received)
     assert 14.0 < received[-1].voltage_v < 16.0

@@ -7,12 +7,12 @@ import math
 import shutil
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from probe import Probe, start_node, stop
 
 from thruster_fdd.core.paths import default_models_dir
 from thruster_fdd.core.scenario import run_scenario
@@ -25,16 +25,12 @@ NS = "/thruster/nm"
 
 @dataclass
 class Rig:
-    node: object
-    executor: object
+    probe: Probe
     pub: object
     residuals: list
-    proc: subprocess.Popen[bytes]
 
     def spin(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.01)  # type: ignore[attr-defined]
+        self.probe.spin(seconds)
 
     def send(self, t: float, command: float, voltage: float, rpm: float, current: float) -> None:
         from thruster_fdd_msgs.msg import EscTelemetry
@@ -50,57 +46,29 @@ class Rig:
 
 @pytest.fixture(scope="module")
 def rig() -> Iterator[Rig]:
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from thruster_fdd_msgs.msg import EscTelemetry, Residual
 
     assert (NOMINAL / "model_card.json").is_file(), "the committed nominal model is missing"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "thruster_fdd.nodes.nominal_model",
-            "--ros-args",
-            "-r",
-            f"__ns:={NS}",
-            "-p",
-            "thruster_id:=nm",
-            "-p",
-            f"model_dir:={NOMINAL}",
-        ]
-    )
-    context = Context()
-    rclpy.init(context=context)
-    node = Node("nominal_probe", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    residuals: list = []
-    node.create_subscription(
-        Residual, f"{NS}/fdd/residual", residuals.append, qos_profile_sensor_data
-    )
-    # Reliable from this side: the node's best-effort subscription still matches, and the
-    # test does not lose samples to a busy machine.
-    pub = node.create_publisher(
-        EscTelemetry,
-        f"{NS}/esc/telemetry",
-        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
-    )
-    r = Rig(node, executor, pub, residuals, proc)
-    try:
-        deadline = time.monotonic() + 20
-        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-            r.spin(0.1)
-        assert pub.get_subscription_count() > 0, "the node never subscribed"
-        yield r
-    finally:
-        proc.send_signal(2)
-        proc.wait(timeout=10)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    proc = start_node("nominal_model", NS, {"thruster_id": "nm", "model_dir": NOMINAL})
+    with Probe("nominal_probe") as probe:
+        residuals: list = []
+        probe.node.create_subscription(
+            Residual, f"{NS}/fdd/residual", residuals.append, qos_profile_sensor_data
+        )
+        # Reliable from this side: the node's best-effort subscription still matches, and the
+        # test does not lose samples to a busy machine.
+        pub = probe.node.create_publisher(
+            EscTelemetry,
+            f"{NS}/esc/telemetry",
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
+        )
+        try:
+            subscribed = probe.spin_until(lambda: pub.get_subscription_count() > 0, 20.0, 0.1)
+            assert subscribed, "the node never subscribed"
+            yield Rig(probe, pub, residuals)
+        finally:
+            stop(proc)
 
 
 def test_residuals_of_a_healthy_thruster_are_small(rig: Rig) -> None:

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from probe import Probe, start_node, stop
 
 from thruster_fdd.core.recording import read_recovered
 
@@ -23,8 +23,7 @@ RATE_HZ = 200.0
 class Graph:
     """A publisher of numbered telemetry and a /diagnostics listener in this process."""
 
-    node: object
-    executor: object
+    probe: Probe
     pub: object
     diagnostics: list
 
@@ -39,55 +38,41 @@ class Graph:
             self.pub.publish(EscTelemetry(thruster_id="r0", sequence=seq, rpm=float(seq)))  # type: ignore[attr-defined]
             seq += 1
             next_t += 1.0 / RATE_HZ
-            self.executor.spin_once(timeout_sec=max(0.0, next_t - time.monotonic()))  # type: ignore[attr-defined]
+            self.probe.executor.spin_once(timeout_sec=max(0.0, next_t - time.monotonic()))
         return seq
 
 
 @pytest.fixture
 def graph() -> Iterator[Graph]:
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import EscTelemetry
 
-    context = Context()
-    rclpy.init(context=context)
-    node = Node("recorder_probe", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    diagnostics: list = []
-    node.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: diagnostics.extend(s for s in m.status if s.name == "/recorder"),
-        reliable,
-    )
-    pub = node.create_publisher(EscTelemetry, "/thruster/r0/esc/telemetry", reliable)
-    try:
-        yield Graph(node, executor, pub, diagnostics)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    with Probe("recorder_probe") as probe:
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        diagnostics: list = []
+        probe.node.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: diagnostics.extend(s for s in m.status if s.name == "/recorder"),
+            reliable,
+        )
+        pub = probe.node.create_publisher(EscTelemetry, "/thruster/r0/esc/telemetry", reliable)
+        yield Graph(probe, pub, diagnostics)
 
 
-def _start_recorder(out: Path, *extra: str) -> subprocess.Popen[bytes]:
-    cmd = [sys.executable, "-m", "thruster_fdd.nodes.recorder", "--ros-args"]
-    cmd += ["-p", f"output_dir:={out}", "-p", "prefix:=test", "-p", "discovery_period_s:=0.2"]
-    for item in extra:
-        cmd += ["-p", item]
-    return subprocess.Popen(cmd)
+def _start_recorder(out: Path, **params: object) -> subprocess.Popen[bytes]:
+    defaults = {"output_dir": out, "prefix": "test", "discovery_period_s": 0.2}
+    return start_node("recorder", params={**defaults, **params})
 
 
 def _wait_subscribed(graph: Graph, timeout_s: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while graph.pub.get_subscription_count() == 0 and time.monotonic() < deadline:  # type: ignore[attr-defined]
-        graph.executor.spin_once(timeout_sec=0.05)  # type: ignore[attr-defined]
-    assert graph.pub.get_subscription_count() > 0, "the recorder never subscribed"  # type: ignore[attr-defined]
+    subscribed = graph.probe.spin_until(
+        lambda: graph.pub.get_subscription_count() > 0,  # type: ignore[attr-defined]
+        timeout_s,
+        0.05,
+    )
+    assert subscribed, "the recorder never subscribed"
 
 
 def test_clean_stop_gives_files_two_readers_agree_on(graph: Graph, tmp_path: Path) -> None:
@@ -100,8 +85,7 @@ def test_clean_stop_gives_files_two_readers_agree_on(graph: Graph, tmp_path: Pat
         _wait_subscribed(graph)
         sent = graph.publish_for(2.0)
     finally:
-        recorder.send_signal(signal.SIGINT)
-        assert recorder.wait(timeout=15) == 0
+        assert stop(recorder, 15.0) == 0
     files = sorted(tmp_path.glob("test_*.mcap"))
     assert files
     with files[0].open("rb") as f:
@@ -123,7 +107,7 @@ def test_clean_stop_gives_files_two_readers_agree_on(graph: Graph, tmp_path: Pat
 
 
 def test_kill_9_loses_at_most_the_last_flush_period(graph: Graph, tmp_path: Path) -> None:
-    recorder = _start_recorder(tmp_path, "flush_period_s:=0.5", "compression:=lz4")
+    recorder = _start_recorder(tmp_path, flush_period_s=0.5, compression="lz4")
     try:
         _wait_subscribed(graph)
         sent = graph.publish_for(3.0)
@@ -165,8 +149,7 @@ def test_full_disk_is_reported_and_the_node_survives(graph: Graph, tmp_path: Pat
         assert "No space left" in errors[0]
         assert recorder.poll() is None, "the recorder must keep running"
     finally:
-        recorder.send_signal(signal.SIGINT)
-        recorder.wait(timeout=15)
+        stop(recorder, 15.0)
 
 
 def test_unwritable_folder_is_reported(graph: Graph, tmp_path: Path) -> None:
@@ -174,14 +157,11 @@ def test_unwritable_folder_is_reported(graph: Graph, tmp_path: Path) -> None:
     blocker.write_text("not a folder")
     recorder = _start_recorder(blocker / "rec")
     try:
-        deadline = time.monotonic() + 15
-        while time.monotonic() < deadline and not graph.diagnostics:
-            graph.executor.spin_once(timeout_sec=0.1)  # type: ignore[attr-defined]
-        assert graph.diagnostics, "the recorder published no status"
+        published = graph.probe.spin_until(lambda: bool(graph.diagnostics), 15.0, 0.1)
+        assert published, "the recorder published no status"
         status = graph.diagnostics[-1]
         assert status.level == b"\x02"
         assert "cannot record to" in status.message
         assert recorder.poll() is None
     finally:
-        recorder.send_signal(signal.SIGINT)
-        recorder.wait(timeout=15)
+        stop(recorder, 15.0)
