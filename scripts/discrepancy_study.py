@@ -32,14 +32,34 @@ import numpy as np
 from scipy.stats import beta
 from tqdm import tqdm
 
-from thruster_fdd.core.discrepancy import run, simulate_model
+from thruster_fdd.core.data import Trace
+from thruster_fdd.core.discrepancy import Measured, run, simulate_model
 from thruster_fdd.core.discrepancy_cases import PLAUSIBLE, SIGNALS, make_case
+from thruster_fdd.core.simconfig import SimConfig
 
 PAIRS = (
     ("dead_time", "current_limit"),
     ("deadband", "esc_lag"),
     ("coulomb_friction", "voltage_sag"),
 )
+
+
+def _model_error(config: SimConfig, clean: Trace, data: Measured) -> float:
+    """Held-out mean squared error of ``config``'s free run against the unit's noise-free
+    response, rpm and current (the signals of report.json's gap), in noise-variance units.
+
+    The bus voltage is left out: the model's comes from the measured one through the supply
+    reconstruction, not from the model.
+    """
+    sim = simulate_model(config, data)
+    return float(
+        np.mean(
+            [
+                np.mean((sim[c] - getattr(clean, c))[data.held] ** 2) / data.sigma[c] ** 2
+                for c in ("rpm", "current")
+            ]
+        )
+    )
 
 
 def one(job: tuple[tuple[str, ...], int, float]) -> dict:
@@ -50,23 +70,7 @@ def one(job: tuple[tuple[str, ...], int, float]) -> dict:
     t0 = time.perf_counter()
     result, data = run(case.trace, case.start, workers=1, progress=False)
     rep = result.report()
-    # Model error against the unit's noise-free response (held-out, noise-variance units): rpm
-    # and current, the signals of report.json's gap. (The bus voltage is left out: the model's
-    # comes from the measured one through the supply reconstruction, not from the model.)
-    model_error = []
-    for fit in (result.start, result.final):
-        sim = simulate_model(fit.config, data)
-        model_error.append(
-            float(
-                np.mean(
-                    [
-                        np.mean((sim[c] - getattr(case.clean, c))[data.held] ** 2)
-                        / data.sigma[c] ** 2
-                        for c in ("rpm", "current")
-                    ]
-                )
-            )
-        )
+    model_error = [_model_error(f.config, case.clean, data) for f in (result.start, result.final)]
     errors = {}
     for name, params in case.hidden.items():
         found = next((m for m in rep["missing_effects"] if m["name"] == name), None)

@@ -105,6 +105,18 @@ def test_nothing_missing_names_nothing(ci_results) -> None:
     assert result.report()["missing_effects"] == []
 
 
+def test_case_clean_is_the_same_unit_without_noise() -> None:
+    """``Case.clean`` (the study's reference for the model error): the measured trace's unit,
+    command and time without measurement noise, outliers, quantisation or floor."""
+    case = make_case(("deadband",), 5, duration_s=30.0)
+    np.testing.assert_array_equal(case.clean.t, case.trace.t)
+    np.testing.assert_array_equal(case.clean.command, case.trace.command)
+    moving = np.abs(case.clean.rpm) > 400.0  # above the 300 rpm floor of the measurement
+    noise = case.trace.rpm[moving] - case.clean.rpm[moving]
+    assert 5.0 < float(np.median(np.abs(noise))) * 1.4826 < 30.0  # t100 rpm noise 15
+    assert np.any((case.clean.rpm != 0.0) & (np.abs(case.clean.rpm) < 300.0))
+
+
 def test_start_config_drop() -> None:
     t100 = load_config("t100")
     config, warnings = start_config(t100, ["deadband", "slew_rate_limit"])
