@@ -26,6 +26,8 @@ import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
+from thruster_fdd.nodes.common import NO_SUB_EVENTS
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -72,11 +74,15 @@ def main() -> None:
     reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     for i in range(args.thrusters):
         ns = f"/thruster/t{i}"
-        node.create_subscription(
-            EscTelemetry, f"{ns}/esc/telemetry", listener("telemetry"), qos_profile_sensor_data
-        )
-        node.create_subscription(Residual, f"{ns}/fdd/residual", listener("residual"), reliable)
-        node.create_subscription(Diagnosis, f"{ns}/fdd/diagnosis", listener("diagnosis"), reliable)
+        for msg_type, topic, stage, qos in (
+            (EscTelemetry, "esc/telemetry", "telemetry", qos_profile_sensor_data),
+            (Residual, "fdd/residual", "residual", reliable),
+            (Diagnosis, "fdd/diagnosis", "diagnosis", reliable),
+        ):
+            # Without QoS event handlers, as the nodes: less of the observer's own load.
+            node.create_subscription(
+                msg_type, f"{ns}/{topic}", listener(stage), qos, event_callbacks=NO_SUB_EVENTS
+            )
     while time.monotonic() - start < args.warmup + args.seconds:
         rclpy.spin_once(node, timeout_sec=0.1)
     up.send_signal(signal.SIGINT)

@@ -22,6 +22,8 @@ from thruster_fdd_msgs.msg import Diagnosis, Residual
 from thruster_fdd.core.diagnosis import ClassifierModel, Decision, DiagnosisStream
 from thruster_fdd.core.paths import default_models_dir
 from thruster_fdd.nodes.common import (
+    NO_PUB_EVENTS,
+    NO_SUB_EVENTS,
     RELIABLE_10,
     declare_parameters,
     diagnostics_publisher,
@@ -83,10 +85,12 @@ class ClassifierNode(Node):
         self._mismatch = ""
         self._stale = False
         self._received = 0
-        self._pub = self.create_publisher(Diagnosis, "fdd/diagnosis", RELIABLE_10)
+        self._pub = self.create_publisher(
+            Diagnosis, "fdd/diagnosis", RELIABLE_10, event_callbacks=NO_PUB_EVENTS
+        )
         self._diag_pub = diagnostics_publisher(self)
         self._sub: Subscription | None = self.create_subscription(
-            Residual, "fdd/residual", self._on_residual, INPUT_QOS
+            Residual, "fdd/residual", self._on_residual, INPUT_QOS, event_callbacks=NO_SUB_EVENTS
         )
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
         self.get_logger().info(

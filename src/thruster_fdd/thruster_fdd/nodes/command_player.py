@@ -13,7 +13,7 @@ from rclpy.node import Node
 from thruster_fdd_msgs.msg import ThrusterCommand
 
 from thruster_fdd.core.signals import make_signal
-from thruster_fdd.nodes.common import RELIABLE_10, declare_parameters, run
+from thruster_fdd.nodes.common import NO_PUB_EVENTS, RELIABLE_10, declare_parameters, run
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("signal", "mission", "command signal: steps | sine:F | chirp | multilevel | mission"),
@@ -35,7 +35,9 @@ class CommandPlayer(Node):
             p("signal").value, float(p("duration_s").value), rate, seed=int(p("seed").value)
         )
         self._index = 0
-        self._pub = self.create_publisher(ThrusterCommand, "esc/command", RELIABLE_10)
+        self._pub = self.create_publisher(
+            ThrusterCommand, "esc/command", RELIABLE_10, event_callbacks=NO_PUB_EVENTS
+        )
         self.create_timer(1.0 / rate, self._tick)
 
     def _tick(self) -> None:

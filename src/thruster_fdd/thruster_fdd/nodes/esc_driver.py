@@ -24,6 +24,8 @@ from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 from thruster_fdd.core import link, protocol
 from thruster_fdd.nodes.common import (
+    NO_PUB_EVENTS,
+    NO_SUB_EVENTS,
     RELIABLE_10,
     declare_parameters,
     diagnostics_publisher,
@@ -85,9 +87,17 @@ class EscDriver(Node):
         self._reconnect_s = float(p("reconnect_period_s").value)
         self._diag_period_s = float(p("diagnostics_period_s").value)
 
-        self._pub = self.create_publisher(EscTelemetry, "esc/telemetry", qos_profile_sensor_data)
+        self._pub = self.create_publisher(
+            EscTelemetry, "esc/telemetry", qos_profile_sensor_data, event_callbacks=NO_PUB_EVENTS
+        )
         self._diag_pub = diagnostics_publisher(self)
-        self.create_subscription(ThrusterCommand, "esc/command", self._on_command, RELIABLE_10)
+        self.create_subscription(
+            ThrusterCommand,
+            "esc/command",
+            self._on_command,
+            RELIABLE_10,
+            event_callbacks=NO_SUB_EVENTS,
+        )
 
         self._inbox: queue.SimpleQueue[_Received] = queue.SimpleQueue()
         self._wake = self.create_guard_condition(self._drain)

@@ -17,6 +17,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
+from thruster_fdd.nodes.common import NO_SUB_EVENTS
+
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 WINDOW_S = 2.0
 
@@ -46,20 +48,29 @@ class Monitor(Node):
                 f"{ns}/esc/telemetry",
                 lambda msg, tid=tid: self._on_telemetry(tid, msg),
                 qos_profile_sensor_data,
+                event_callbacks=NO_SUB_EVENTS,
             )
             self.create_subscription(
                 Residual,
                 f"{ns}/fdd/residual",
                 lambda msg, tid=tid: self._on_residual(tid, msg),
                 qos_profile_sensor_data,
+                event_callbacks=NO_SUB_EVENTS,
             )
             self.create_subscription(
                 Diagnosis,
                 f"{ns}/fdd/diagnosis",
                 lambda msg, tid=tid: setattr(self.rows[tid], "diagnosis", msg),
                 reliable,
+                event_callbacks=NO_SUB_EVENTS,
             )
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable)
+        self.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            self._on_diagnostics,
+            reliable,
+            event_callbacks=NO_SUB_EVENTS,
+        )
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

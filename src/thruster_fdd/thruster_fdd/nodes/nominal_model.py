@@ -25,6 +25,8 @@ from thruster_fdd.core.nominal import NominalModel
 from thruster_fdd.core.paths import default_models_dir
 from thruster_fdd.core.residuals import ResidualStream
 from thruster_fdd.nodes.common import (
+    NO_PUB_EVENTS,
+    NO_SUB_EVENTS,
     declare_parameters,
     diagnostics_publisher,
     publish_status,
@@ -69,12 +71,20 @@ class NominalModelNode(Node):
         self._model = NominalModel.load(model_dir)
         self._stream = ResidualStream(self._model, self._max_gap_periods)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._pub = self.create_publisher(Residual, "fdd/residual", RESIDUAL_QOS)
+        self._pub = self.create_publisher(
+            Residual, "fdd/residual", RESIDUAL_QOS, event_callbacks=NO_PUB_EVENTS
+        )
         self._diag_pub = diagnostics_publisher(self)
         telemetry_qos = (
             REPLAY_TELEMETRY_QOS if p("reliable_telemetry").value else qos_profile_sensor_data
         )
-        self.create_subscription(EscTelemetry, "esc/telemetry", self._on_telemetry, telemetry_qos)
+        self.create_subscription(
+            EscTelemetry,
+            "esc/telemetry",
+            self._on_telemetry,
+            telemetry_qos,
+            event_callbacks=NO_SUB_EVENTS,
+        )
         self._diag_period_s = float(p("diagnostics_period_s").value)
         self.create_timer(self._diag_period_s, self._publish_diagnostics)
         self._published = 0
