@@ -1,4 +1,5 @@
-"""What the node tests share: a probe node of their own and the node processes under test.
+"""What the node tests share: a probe node of their own and the node processes under test
+(stopped with ``thruster_fdd.lifetime.stop_children``, as ``up`` and ``replay`` stop theirs).
 
 Each test graph runs the node under test as a process from its entry module (as ``thruster-fdd
 up`` starts it) and talks to it from a probe node in the test process, on a private rclpy
@@ -7,7 +8,6 @@ context spun by a single-threaded executor in the test's thread.
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import time
@@ -78,14 +78,3 @@ def start_node(
     for name, value in (params or {}).items():
         cmd += ["-p", f"{name}:={value}"]
     return subprocess.Popen(cmd)
-
-
-def stop(proc: subprocess.Popen[bytes], timeout_s: float = 10.0) -> int:
-    """Ctrl-C ``proc``, kill it if it has not stopped within ``timeout_s`` s; its exit code."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait(timeout=timeout_s)

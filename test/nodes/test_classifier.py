@@ -11,13 +11,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from probe import Probe, start_node, stop
+from probe import Probe, start_node
 
 from thruster_fdd.core.data import CLASS_NAMES
 from thruster_fdd.core.nominal import NominalModel
 from thruster_fdd.core.paths import default_models_dir
 from thruster_fdd.core.residuals import ResidualStream
 from thruster_fdd.core.scenario import run_scenario
+from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros
 
@@ -96,7 +97,7 @@ def rig() -> Iterator[Rig]:
             assert subscribed, "the classifier never subscribed"
             yield r
         finally:
-            stop(proc)
+            stop_children({"classifier": proc}, timeout_s=10.0)
 
 
 def test_a_fouled_thruster_is_diagnosed_with_an_error_status(rig: Rig) -> None:

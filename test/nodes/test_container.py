@@ -6,8 +6,9 @@ import subprocess
 import sys
 
 import pytest
-from probe import Probe, stop
+from probe import Probe
 
+from thruster_fdd.lifetime import stop_children
 from thruster_fdd.nodes.container import parse_parameters
 
 
@@ -97,7 +98,7 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
             subscribers = node.get_subscriptions_info_by_topic(f"{ns}/fdd/residual")
             classifier_subscribed = any(s.node_name == "classifier" for s in subscribers)
         finally:
-            stop(proc, 20.0)
+            stop_children({"container": proc}, timeout_s=20.0)
     assert len(residuals) == len(trace)
     assert classifier_subscribed is not intra_process
     assert len(diagnoses) >= 10

@@ -15,10 +15,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pytest
-from probe import Probe, start_node, stop
+from probe import Probe, start_node
 
 from thruster_fdd.core import emulator as emu
 from thruster_fdd.core.physics import ThrusterSimulator, load_config
+from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros
 
@@ -105,7 +106,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         assert r.spin_until(lambda: len(r.telemetry) >= 20, 20.0), "no telemetry from driver"
         yield r
     finally:
-        stop(driver)
+        stop_children({"esc_driver": driver}, timeout_s=10.0)
         stop_event.set()
         thread.join(timeout=5)
         probe.close()
@@ -252,7 +253,7 @@ def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:
         try:
             probe.spin_until(lambda: len(received) >= 20, 20.0, 0.05)
         finally:
-            stop(driver)
+            stop_children({"esc_driver": driver}, timeout_s=10.0)
             stop_event.set()
             thread.join(timeout=5)
     assert len(received) >= 20

@@ -12,10 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from probe import Probe, start_node, stop
+from probe import Probe, start_node
 
 from thruster_fdd.core.paths import default_models_dir
 from thruster_fdd.core.scenario import run_scenario
+from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros
 
@@ -68,7 +69,7 @@ def rig() -> Iterator[Rig]:
             assert subscribed, "the node never subscribed"
             yield Rig(probe, pub, residuals)
         finally:
-            stop(proc)
+            stop_children({"nominal_model": proc}, timeout_s=10.0)
 
 
 def test_residuals_of_a_healthy_thruster_are_small(rig: Rig) -> None:

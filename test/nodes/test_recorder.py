@@ -10,9 +10,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from probe import Probe, start_node, stop
+from probe import Probe, start_node
 
 from thruster_fdd.core.recording import read_recovered
+from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros
 
@@ -85,7 +86,8 @@ def test_clean_stop_gives_files_two_readers_agree_on(graph: Graph, tmp_path: Pat
         _wait_subscribed(graph)
         sent = graph.publish_for(2.0)
     finally:
-        assert stop(recorder, 15.0) == 0
+        assert not stop_children({"recorder": recorder}, timeout_s=15.0), "no clean stop"
+        assert recorder.returncode == 0
     files = sorted(tmp_path.glob("test_*.mcap"))
     assert files
     with files[0].open("rb") as f:
@@ -149,7 +151,7 @@ def test_full_disk_is_reported_and_the_node_survives(graph: Graph, tmp_path: Pat
         assert "No space left" in errors[0]
         assert recorder.poll() is None, "the recorder must keep running"
     finally:
-        stop(recorder, 15.0)
+        stop_children({"recorder": recorder}, timeout_s=15.0)
 
 
 def test_unwritable_folder_is_reported(graph: Graph, tmp_path: Path) -> None:
@@ -164,4 +166,4 @@ def test_unwritable_folder_is_reported(graph: Graph, tmp_path: Path) -> None:
         assert "cannot record to" in status.message
         assert recorder.poll() is None
     finally:
-        stop(recorder, 15.0)
+        stop_children({"recorder": recorder}, timeout_s=15.0)
