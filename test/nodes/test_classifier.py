@@ -32,6 +32,7 @@ class Rig:
     pub: object
     diagnoses: list
     statuses: list
+    nominal_id: str
 
     def spin(self, seconds: float) -> None:
         self.probe.spin(seconds)
@@ -42,7 +43,6 @@ class Rig:
 
         trace = run_scenario("t100", condition, signal="sine:0.02", duration_s=90, seed=77)
         stream = ResidualStream(NominalModel.load(MODELS / "nominal"))
-        nominal_id = NominalModel.load(MODELS / "nominal").model_id
         for i in range(len(trace)):
             args = (trace.command[i], trace.voltage[i], trace.rpm[i], trace.current[i])
             r = stream.push(float(trace.t[i]), *args)
@@ -59,7 +59,7 @@ class Rig:
                 predicted_current_a=r.predicted_current_a,
                 residual_current_a=r.residual_current_a,
                 flags=r.flags,
-                model_id=model_id or nominal_id,
+                model_id=model_id or self.nominal_id,
             )
             stamp_ns = round((t0 + float(trace.t[i])) * 1e9)
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
@@ -84,7 +84,7 @@ def rig() -> Iterator[Rig]:
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
         pub = node.create_publisher(Residual, f"{NS}/fdd/residual", residual_qos)
-        r = Rig(probe, pub, [], [])
+        r = Rig(probe, pub, [], [], NominalModel.load(MODELS / "nominal").model_id)
         node.create_subscription(Diagnosis, f"{NS}/fdd/diagnosis", r.diagnoses.append, reliable)
         node.create_subscription(
             DiagnosticArray,
@@ -121,12 +121,26 @@ def test_a_fouled_thruster_is_diagnosed_with_an_error_status(rig: Rig) -> None:
 
 
 def test_silence_goes_stale_and_unknown(rig: Rig) -> None:
-    from thruster_fdd_msgs.msg import Diagnosis
+    import time
 
+    from thruster_fdd_msgs.msg import Diagnosis, Residual
+
+    # One residual ends any earlier silence, so this test sees its own stale UNKNOWN (said once
+    # per silence) however long an earlier test spun.
+    msg = Residual(thruster_id="cl", voltage_v=15.0, model_id=rig.nominal_id)
+    rig.pub.publish(msg)  # type: ignore[attr-defined]
+    sent = time.monotonic()
+    rig.spin(0.5)
     n0, s0 = len(rig.diagnoses), len(rig.statuses)
-    rig.spin(4.0)
-    assert any(d.condition == Diagnosis.UNKNOWN for d in rig.diagnoses[n0:])
-    assert any(s.level == b"\x03" for s in rig.statuses[s0:])
+
+    def stale() -> bool:
+        return any(d.condition == Diagnosis.UNKNOWN for d in rig.diagnoses[n0:])
+
+    assert rig.probe.spin_until(stale, 15.0, 0.05), "no UNKNOWN after the residuals stopped"
+    assert time.monotonic() - sent > 2.0  # stale_after_s
+    assert rig.probe.spin_until(
+        lambda: any(s.level == b"\x03" for s in rig.statuses[s0:]), 5.0, 0.05
+    )
 
 
 def test_residuals_of_another_nominal_model_are_refused(rig: Rig) -> None:
