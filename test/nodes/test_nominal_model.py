@@ -79,7 +79,7 @@ def test_residuals_of_a_healthy_thruster_are_small(rig: Rig) -> None:
         rig.send(1000.0 + trace.t[i], trace.command[i], trace.voltage[i], trace.rpm[i],
                  trace.current[i])  # fmt: skip
         rig.spin(0.004)
-    rig.spin(1.0)
+    rig.probe.spin_until(lambda: len(rig.residuals) - n0 >= len(trace), 10.0)
     got = rig.residuals[n0:]
     assert len(got) >= 0.95 * len(trace)
     valid = [m for m in got if m.flags == 0]
@@ -105,7 +105,7 @@ def test_nan_and_gaps_are_flagged_and_never_published_as_nan(rig: Rig) -> None:
         rig.spin(0.005)
     t += 5.0
     rig.send(t, 0.3, 15.0, 1500.0, 1.5)
-    rig.spin(1.0)
+    rig.probe.spin_until(lambda: len(rig.residuals) - n0 >= 37, 10.0)  # every sample answered
     got = rig.residuals[n0:]
     flags = [m.flags for m in got]
     assert 4 in flags, "INPUT_INVALID for the NaN sample"
