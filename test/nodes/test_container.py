@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import textwrap
 
 import pytest
 from probe import Probe
@@ -47,7 +48,8 @@ def test_booleans_are_parsed() -> None:
 @pytest.mark.parametrize("intra_process", [True, False], ids=["intra-process", "dds"])
 def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     """Telemetry in, residuals out on DDS, diagnoses out; intra-process: the classifier takes
-    the residuals from its nominal model, with no fdd/residual subscription of its own."""
+    the residuals from its nominal model, with no fdd/residual subscription of its own; Ctrl-C
+    stops every thruster's executor thread and the process exits 0."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
@@ -57,7 +59,8 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     trace = run_scenario("t100", "broken_blade_2", signal="sine:0.02", duration_s=40, seed=4)
     ns = "/thruster/ct"
     cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", "nominal_model", "classifier"]
-    cmd += ["--thrusters", "ct", "-p", "nominal_model:reliable_telemetry=true"]
+    # A second thruster, idle: each thruster spins in its own executor thread.
+    cmd += ["--thrusters", "ct", "cx", "-p", "nominal_model:reliable_telemetry=true"]
     # No stale UNKNOWN after the last message: on a loaded machine the probe's spin can overrun
     # and catch it as the last diagnosis (seen once in the full suite).
     cmd += ["-p", "classifier:stale_after_s=60.0"]
@@ -99,8 +102,46 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
             subscribers = node.get_subscriptions_info_by_topic(f"{ns}/fdd/residual")
             classifier_subscribed = any(s.node_name == "classifier" for s in subscribers)
         finally:
-            stop_children({"container": proc}, timeout_s=20.0)
+            killed = stop_children({"container": proc}, timeout_s=20.0)
+    assert killed == [], "the container did not stop on SIGINT"
+    assert proc.returncode == 0
     assert len(residuals) == len(trace)
     assert classifier_subscribed is not intra_process
     assert len(diagnoses) >= 10
     assert diagnoses[-1].label == "broken_blade_2"
+
+
+# Two executors spun by spin_in_threads; a timer of the second raises after 0.3 s.
+FAILING = textwrap.dedent(
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from thruster_fdd.nodes.container import spin_in_threads
+
+    def boom():
+        raise ZeroDivisionError("boom")
+
+    rclpy.init()
+    good, bad = Node("good"), Node("bad")
+    good.create_timer(0.1, lambda: None)
+    bad.create_timer(0.3, boom)
+    executors = [SingleThreadedExecutor(), SingleThreadedExecutor()]
+    executors[0].add_node(good)
+    executors[1].add_node(bad)
+    try:
+        spin_in_threads(executors, ["t0", "t1"])
+    finally:
+        for executor in executors:
+            executor.shutdown(timeout_sec=1.0)
+    """
+)
+
+
+@pytest.mark.ros
+def test_a_callback_that_raises_in_one_thruster_thread_stops_the_container() -> None:
+    out = subprocess.run(
+        [sys.executable, "-c", FAILING], capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 1
+    assert "thruster t1: a callback raised ZeroDivisionError('boom')" in out.stderr

@@ -101,7 +101,7 @@ STUCK = textwrap.dedent(
     node = Stuck("stuck")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    common.release_and_destroy(executor, [node])
+    common.release_and_destroy([executor], [node])
     """
 )
 

@@ -83,7 +83,7 @@ def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        release_and_destroy(executor, [node])
+        release_and_destroy([executor], [node])
         rclpy.try_shutdown()
 
 
@@ -91,12 +91,12 @@ TEARDOWN_TIMEOUT_S = 10
 """Longest teardown of a node process after Ctrl-C, s; then the process is ended."""
 
 
-def release_and_destroy(executor: Executor, nodes: Iterable[Node]) -> None:
-    """Shut ``executor`` down, then call each node's ``shutdown()`` (if any) and destroy it.
+def release_and_destroy(executors: Iterable[Executor], nodes: Iterable[Node]) -> None:
+    """Shut the ``executors`` down, then call each node's ``shutdown()`` (if any) and destroy it.
 
     For the end of a node process only. A Ctrl-C inside a callback can leave handles in use,
     and rclpy's ``destroy_node`` then spins forever in C++ holding the GIL (seen: orphaned nodes
-    at full CPU for half an hour). Shutting the executor down first drops its wait generator,
+    at full CPU for half an hour). Shutting the executors down first drops their wait generators,
     which avoids most of it; for the rest an alarm ends the process ``TEARDOWN_TIMEOUT_S``
     after teardown began. SIGALRM's default action needs no Python code, so it works where a
     Python signal handler or thread could never run. The nodes' ``shutdown()`` hooks (files
@@ -104,7 +104,8 @@ def release_and_destroy(executor: Executor, nodes: Iterable[Node]) -> None:
     """
     signal.signal(signal.SIGALRM, signal.SIG_DFL)
     signal.alarm(TEARDOWN_TIMEOUT_S)
-    executor.shutdown(timeout_sec=1.0)
+    for executor in executors:
+        executor.shutdown(timeout_sec=1.0)
     for node in nodes:
         shutdown = getattr(node, "shutdown", None)
         if shutdown is not None:

@@ -5,7 +5,8 @@ in one container, so torch and the model code are loaded once, not once per thru
 (about 300 MB each), and each thruster's classifier gets its residuals straight from its
 nominal model in the process (intra-process delivery, ``--no-intra-process`` turns it off) —
 the ROS composition idea with plain rclpy. Every node keeps its own namespace ``/thruster/<id>``,
-its parameters and its parameter services (``thruster-fdd reload`` works the same).
+its parameters and its parameter services (``thruster-fdd reload`` works the same), and each
+thruster's nodes are spun by an executor thread of their own (``spin_in_threads``).
 
 Usage: ``python -m thruster_fdd.nodes.container KIND [KIND ...] --thrusters t0 t1
 [-p [KIND:]name=value ...]``; a ``KIND:`` prefix gives the parameter to that kind's nodes only.
@@ -16,9 +17,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import threading
+from collections.abc import Sequence
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from thruster_fdd.lifetime import stop_with_parent
@@ -92,10 +95,12 @@ def main(argv: list[str] | None = None) -> None:
         classes[kind] = getattr(importlib.import_module(f"thruster_fdd.nodes.{module}"), cls_name)
     stop_with_parent()
     rclpy.init()
-    executor = SingleThreadedExecutor()
+    executors: list[SingleThreadedExecutor] = []
     nodes = []
     try:
         for tid in args.thrusters:
+            executor = SingleThreadedExecutor()
+            executors.append(executor)
             made = {}
             for kind, node_cls in classes.items():
                 overrides = [Parameter("thruster_id", value=tid), *params[kind]]
@@ -104,15 +109,53 @@ def main(argv: list[str] | None = None) -> None:
                 executor.add_node(made[kind])
             if args.intra_process and {"nominal_model", "classifier"} <= made.keys():
                 made["classifier"].take_residuals_from(made["nominal_model"])
-        executor.spin()
+        spin_in_threads(executors, args.thrusters)
     except ValueError as exc:
         print(f"container {' '.join(args.kinds)}: cannot start: {exc}", file=sys.stderr)
         sys.exit(1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        release_and_destroy(executor, nodes)
+        release_and_destroy(executors, nodes)
         rclpy.try_shutdown()
+
+
+def spin_in_threads(executors: Sequence[Executor], names: Sequence[str]) -> None:
+    """Spin each executor in a thread of its own until Ctrl-C or shutdown.
+
+    One executor per thruster because rclpy rebuilds the wait set from every entity of an
+    executor's nodes on each wake (with one executor for four thrusters, most of the
+    container's CPU: ``docs/development.md``). The caller shuts the executors down.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        On Ctrl-C.
+    RuntimeError
+        When a callback raised: the whole container stops, as with a single executor.
+    """
+    errors: list[tuple[str, BaseException]] = []
+
+    def spin(name: str, executor: Executor) -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+        except BaseException as exc:
+            errors.append((name, exc))
+            executor.context.try_shutdown()  # wakes every executor of the context: all end
+
+    threads = [
+        threading.Thread(target=spin, args=(name, executor), name=f"spin-{name}")
+        for name, executor in zip(names, executors, strict=True)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    if errors:
+        name, exc = errors[0]
+        raise RuntimeError(f"thruster {name}: a callback raised {exc!r}") from exc
 
 
 if __name__ == "__main__":
