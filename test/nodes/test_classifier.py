@@ -6,6 +6,7 @@ import json
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -121,8 +122,6 @@ def test_a_fouled_thruster_is_diagnosed_with_an_error_status(rig: Rig) -> None:
 
 
 def test_silence_goes_stale_and_unknown(rig: Rig) -> None:
-    import time
-
     from thruster_fdd_msgs.msg import Diagnosis, Residual
 
     # One residual ends any earlier silence, so this test sees its own stale UNKNOWN (said once

@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as exc:
         print(f"container {' '.join(args.kinds)}: cannot start: {exc}", file=sys.stderr)
         sys.exit(1)
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:
         pass
     finally:
         release_and_destroy(executors, nodes)
