@@ -15,9 +15,9 @@ import resource
 import tempfile
 import time
 
-from thruster_fdd.core.discrepancy import run
-from thruster_fdd.core.discrepancy_cases import make_case
-from thruster_fdd.core.discrepancy_report import write_report
+from thruster_fdd.core.discrepancy.cases import make_case
+from thruster_fdd.core.discrepancy.report import write_report
+from thruster_fdd.core.discrepancy.search import run_workflow
 
 
 def main() -> None:
@@ -31,7 +31,7 @@ def main() -> None:
     load = os.getloadavg()[0]
     start = time.perf_counter()
     cpu0 = _cpu_s()
-    result, data = run(case.trace, case.start, workers=args.workers, progress=False)
+    result, data = run_workflow(case.trace, case.start, workers=args.workers, progress=False)
     with tempfile.TemporaryDirectory() as out:
         write_report(result, data, out)
     wall = time.perf_counter() - start

@@ -24,8 +24,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from thruster_fdd_msgs.msg import EscTelemetry
 
-from thruster_fdd.core.paths import default_models_dir
-from thruster_fdd.core.scenario import run_scenario
+from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.sim.scenario import run_scenario
 
 
 def _rss_mb(pid: int) -> float:

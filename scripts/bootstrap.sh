@@ -15,7 +15,7 @@ TFDD_PYTHON="${TFDD_PYTHON:-python3.11}"
 
 _tfdd_log() { printf '[bootstrap] %s\n' "$*" >&2; }
 
-_tfdd_hash() { cat "$@" 2>/dev/null | sha256sum | cut -c1-16; }
+_tfdd_hash() { { cat "$@" 2>/dev/null || true; } | sha256sum | cut -c1-16; }
 
 if [ ! -x "$TFDD_VENV/bin/python" ]; then
     command -v "$TFDD_PYTHON" >/dev/null || { _tfdd_log "needs $TFDD_PYTHON on PATH"; exit 2; }
@@ -77,12 +77,14 @@ set -u
 # __pycache__/), so that nodes started together do not each compile them (about 15 s).
 core_dir="$TFDD_ROOT/src/thruster_fdd/thruster_fdd/core"
 kernel_stamp="$core_dir/__pycache__/.tfdd-kernels-$(_tfdd_hash \
-    "$core_dir"/{features,diagnosis,nominal}.py \
+    "$core_dir"/diagnosis/{features,model}.py "$core_dir"/nominal/runtime.py \
     "$TFDD_ROOT"/models/{nominal,classifier}/model_card.json "$req_stamp")"
 if [ ! -f "$kernel_stamp" ]; then
     _tfdd_log "compiling the model kernels (about 25 s, once)"
-    if python -c "from thruster_fdd.core.diagnosis import ClassifierModel, NominalModel
-from thruster_fdd.core.paths import default_models_dir as d
+    mkdir -p "$core_dir/__pycache__"
+    if python -c "from thruster_fdd.core.artifact import default_models_dir as d
+from thruster_fdd.core.diagnosis.model import ClassifierModel
+from thruster_fdd.core.nominal.runtime import NominalModel
 NominalModel.load(d() / 'nominal'), ClassifierModel.load(d() / 'classifier')"; then
         rm -f "$core_dir"/__pycache__/.tfdd-kernels-*
         touch "$kernel_stamp"

@@ -22,9 +22,10 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from thruster_fdd.core.effects import Deadband, EscLag
-from thruster_fdd.core.physics import RAD_S_TO_RPM, steady_state
-from thruster_fdd.core.simconfig import Measurement, SimConfig, ThrusterParams, dump_config
+from thruster_fdd.core.sim.config import Measurement, SimConfig, ThrusterParams, dump_config
+from thruster_fdd.core.sim.effects import Deadband, EscLag
+from thruster_fdd.core.sim.plant import RAD_S_TO_RPM
+from thruster_fdd.core.sim.steady import steady_state
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "t200"

@@ -32,10 +32,11 @@ import numpy as np
 from scipy.stats import beta
 from tqdm import tqdm
 
-from thruster_fdd.core.data import Trace
-from thruster_fdd.core.discrepancy import Measured, run, simulate_model
-from thruster_fdd.core.discrepancy_cases import PLAUSIBLE, SIGNALS, make_case
-from thruster_fdd.core.simconfig import SimConfig
+from thruster_fdd.core.discrepancy.cases import PLAUSIBLE, SIGNALS, make_case
+from thruster_fdd.core.discrepancy.measure import Measured, simulate_model
+from thruster_fdd.core.discrepancy.search import run_workflow
+from thruster_fdd.core.sim.config import SimConfig
+from thruster_fdd.core.traces.data import Trace
 
 PAIRS = (
     ("dead_time", "current_limit"),
@@ -68,7 +69,7 @@ def one(job: tuple[tuple[str, ...], int, float]) -> dict:
     signal = None if hidden else SIGNALS[seed % len(SIGNALS)]
     case = make_case(hidden, seed, duration_s=duration, signal=signal)
     t0 = time.perf_counter()
-    result, data = run(case.trace, case.start, workers=1, progress=False)
+    result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
     rep = result.report()
     model_error = [_model_error(f.config, case.clean, data) for f in (result.start, result.final)]
     errors = {}

@@ -21,14 +21,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from thruster_fdd.core.physics import (
-    Measurement,
-    hysteresis_loop_area,
-    load_config,
-    simulate,
-    steady_state,
-)
-from thruster_fdd.core.signals import make_signal
+from thruster_fdd.core.sim.config import Measurement, load_config
+from thruster_fdd.core.sim.metrics import hysteresis_loop_area
+from thruster_fdd.core.sim.physics import simulate
+from thruster_fdd.core.sim.signals import make_signal
+from thruster_fdd.core.sim.steady import steady_state
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -119,7 +119,7 @@ def test_cli_bad_input_is_one_line_and_exit_2() -> None:
 def test_message_contract() -> None:
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual, ThrusterCommand
 
-    from thruster_fdd.core.data import CLASS_NAMES
+    from thruster_fdd.core.labels import CLASS_NAMES
 
     telemetry = EscTelemetry.get_fields_and_field_types()
     for field in ("voltage_v", "current_a", "rpm", "pwm_us", "temperature_c", "command"):
@@ -149,9 +149,9 @@ def test_train_nominal_records_its_recordings(tmp_path: Path) -> None:
     import hashlib
     import json
 
-    from thruster_fdd.core.mcap_io import write_trace_mcap
-    from thruster_fdd.core.nominal import NominalModel
-    from thruster_fdd.core.scenario import run_scenario
+    from thruster_fdd.core.nominal.runtime import NominalModel
+    from thruster_fdd.core.sim.scenario import run_scenario
+    from thruster_fdd.core.traces.mcap_io import write_trace_mcap
 
     logs = tmp_path / "logs"
     trace = run_scenario("t100", "nominal_15v", signal="multilevel", duration_s=60, seed=3)

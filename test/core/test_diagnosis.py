@@ -12,13 +12,19 @@ import pytest
 import torch
 
 from thruster_fdd import cli
-from thruster_fdd.core import diagnosis as dg
-from thruster_fdd.core.classifier_eval import Table3Config, confusion, onset_latency, run_table3
-from thruster_fdd.core.data import CLASS_NAMES, write_trace_csv
-from thruster_fdd.core.features import FEATURE_NAMES, window_features
-from thruster_fdd.core.nominal import NominalModel
-from thruster_fdd.core.residuals import ResidualStream
-from thruster_fdd.core.scenario import run_scenario
+from thruster_fdd.core.diagnosis.evaluation import onset_latency
+from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, window_features
+from thruster_fdd.core.diagnosis.metrics import confusion
+from thruster_fdd.core.diagnosis.model import ClassifierModel, softmax
+from thruster_fdd.core.diagnosis.offline import diagnose_trace, trace_decisions
+from thruster_fdd.core.diagnosis.stream import Decision, DiagnosisStream
+from thruster_fdd.core.diagnosis.table3 import Table3Config, run_table3
+from thruster_fdd.core.diagnosis.training import ClassifierConfig, fit_temperature, train_classifier
+from thruster_fdd.core.labels import CLASS_NAMES, UNKNOWN
+from thruster_fdd.core.nominal.residuals import ResidualStream
+from thruster_fdd.core.nominal.runtime import NominalModel
+from thruster_fdd.core.sim.scenario import run_scenario
+from thruster_fdd.core.traces.csv_io import write_trace_csv
 
 NOMINAL_DIR = Path(__file__).resolve().parents[2] / "models" / "nominal"
 WINDOW_S = 5.0
@@ -40,14 +46,14 @@ def models(tmp_path_factory: pytest.TempPathFactory) -> Path:
         for c in CLASS_NAMES
         for seed in (11, 12, 13, 14)
     ]
-    config = dg.ClassifierConfig(window_s=WINDOW_S, epochs=300)
-    dg.train_classifier(traces, root / "nominal", root / "classifier", seed=0, config=config)
+    config = ClassifierConfig(window_s=WINDOW_S, epochs=300)
+    train_classifier(traces, root / "nominal", root / "classifier", seed=0, config=config)
     return root
 
 
 @pytest.fixture(scope="module")
-def loaded(models: Path) -> tuple[NominalModel, dg.ClassifierModel]:
-    return NominalModel.load(models / "nominal"), dg.ClassifierModel.load(models / "classifier")
+def loaded(models: Path) -> tuple[NominalModel, ClassifierModel]:
+    return NominalModel.load(models / "nominal"), ClassifierModel.load(models / "classifier")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -97,10 +103,10 @@ def test_broken_blade_ripple_and_fouling_torque_features() -> None:
 def test_fit_temperature_recovers_overconfidence() -> None:
     rng = np.random.default_rng(0)
     true_logits = rng.normal(size=(4000, 6)) * 2.0
-    p = dg._softmax(true_logits)
+    p = softmax(true_logits)
     y = np.array([rng.choice(6, p=row) for row in p])
-    assert dg.fit_temperature(true_logits * 3.0, y) == pytest.approx(3.0, rel=0.1)
-    assert dg.fit_temperature(true_logits, y) == pytest.approx(1.0, rel=0.1)
+    assert fit_temperature(true_logits * 3.0, y) == pytest.approx(3.0, rel=0.1)
+    assert fit_temperature(true_logits, y) == pytest.approx(1.0, rel=0.1)
 
 
 def test_confusion_counts_unknown_in_last_column() -> None:
@@ -133,35 +139,35 @@ def _broken_copy(models: Path, tmp_path: Path) -> Path:
 
 def test_load_errors_name_the_file_and_the_problem(models: Path, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="model directory missing"):
-        dg.ClassifierModel.load(tmp_path / "nope")
+        ClassifierModel.load(tmp_path / "nope")
     d = _broken_copy(models, tmp_path)
     card_path = d / "model_card.json"
     card = json.loads(card_path.read_text())
 
     card_path.write_text("{not json")
     with pytest.raises(ValueError, match=r"model_card\.json: not valid JSON"):
-        dg.ClassifierModel.load(d)
+        ClassifierModel.load(d)
     card_path.write_text(json.dumps({**card, "class_names": ["a", "b"]}))
     with pytest.raises(ValueError, match=r"model_card\.json: class_names are"):
-        dg.ClassifierModel.load(d)
+        ClassifierModel.load(d)
     card_path.write_text(json.dumps({**card, "kind": "nominal"}))
     with pytest.raises(ValueError, match=r"model_card\.json: kind is 'nominal'"):
-        dg.ClassifierModel.load(d)
+        ClassifierModel.load(d)
     with pytest.raises(ValueError, match=r"model_card\.json: kind is 'nominal'"):
-        dg.ClassifierModel.load(models / "nominal")
+        ClassifierModel.load(models / "nominal")
     card_path.write_text(json.dumps({k: v for k, v in card.items() if k != "temperature"}))
     with pytest.raises(ValueError, match=r"missing field.*temperature"):
-        dg.ClassifierModel.load(d)
+        ClassifierModel.load(d)
     card_path.write_text(json.dumps(card))
     (d / "model.pt2").write_bytes(b"garbage")
     with pytest.raises(ValueError, match=r"model\.pt2: not a loadable"):
-        dg.ClassifierModel.load(d)
+        ClassifierModel.load(d)
     (d / "model.pt2").unlink()
     with pytest.raises(ValueError, match=r"model\.pt2: exported program missing"):
-        dg.ClassifierModel.load(d)
+        ClassifierModel.load(d)
     card_path.unlink()
     with pytest.raises(ValueError, match=r"model_card\.json: model card missing"):
-        dg.ClassifierModel.load(d)
+        ClassifierModel.load(d)
 
 
 def test_classifier_of_another_nominal_model_is_refused(models: Path, tmp_path: Path) -> None:
@@ -170,16 +176,16 @@ def test_classifier_of_another_nominal_model_is_refused(models: Path, tmp_path: 
     (d / "model_card.json").write_text(json.dumps({**card, "nominal_model_id": "nominal-x"}))
     trace = run_scenario("t100", "nominal_15v", signal="steps", duration_s=20.0)
     with pytest.raises(ValueError, match="made with nominal model 'nominal-x'"):
-        dg.diagnose_trace(trace, models / "nominal", d)
+        diagnose_trace(trace, models / "nominal", d)
 
 
 def test_training_refuses_unlabelled_or_incomplete_data(models: Path) -> None:
     trace = run_scenario("t100", "nominal_15v", signal="steps", duration_s=30.0)
     unlabelled = type(trace)(trace.t, trace.command, trace.voltage, trace.rpm, trace.current)
     with pytest.raises(ValueError, match="no condition column or labels"):
-        dg.train_classifier([unlabelled], models / "nominal", None)
+        train_classifier([unlabelled], models / "nominal", None)
     with pytest.raises(ValueError, match="no training window of class"):
-        dg.train_classifier([trace, trace], models / "nominal", None)
+        train_classifier([trace, trace], models / "nominal", None)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -187,17 +193,17 @@ def test_training_refuses_unlabelled_or_incomplete_data(models: Path) -> None:
 
 
 def test_online_stream_equals_offline_diagnose_trace(
-    models: Path, loaded: tuple[NominalModel, dg.ClassifierModel]
+    models: Path, loaded: tuple[NominalModel, ClassifierModel]
 ) -> None:
     trace = run_scenario(
         "t100", "nominal_15v", signal="mission", duration_s=60.0, seed=21,
         fault_at_s=30.0, fault_condition="broken_blade_2",
     )  # fmt: skip
-    offline = dg.diagnose_trace(trace, models / "nominal", models / "classifier")
+    offline = diagnose_trace(trace, models / "nominal", models / "classifier")
     nominal, classifier = loaded
     residuals = ResidualStream(nominal)
     residuals.reset()
-    stream = dg.DiagnosisStream(classifier)
+    stream = DiagnosisStream(classifier)
     online = []
     columns = (trace.t, trace.command, trace.voltage, trace.rpm, trace.current)
     for seq, row in enumerate(zip(*columns, strict=True)):
@@ -220,10 +226,10 @@ def test_online_stream_equals_offline_diagnose_trace(
 
 
 def test_hysteresis_gap_and_invalid_samples(
-    loaded: tuple[NominalModel, dg.ClassifierModel],
+    loaded: tuple[NominalModel, ClassifierModel],
 ) -> None:
     _, classifier = loaded
-    stream = dg.DiagnosisStream(classifier, hop_s=0.5, hysteresis=3)
+    stream = DiagnosisStream(classifier, hop_s=0.5, hysteresis=3)
     n = classifier.window_samples
     row = (0.6, 15.0, 2600.0, 3.0, 0.0, 0.0)
     out = [stream.push(0.1 * k, *row, True) for k in range(n + 20)]
@@ -234,7 +240,7 @@ def test_hysteresis_gap_and_invalid_samples(
     raws = [d.raw_label for d in decisions]
     for k, d in enumerate(decisions):
         if k < 2:
-            assert d.label == dg.UNKNOWN  # three agreeing raw labels needed
+            assert d.label == UNKNOWN  # three agreeing raw labels needed
         elif len(set(raws[k - 2 : k + 1])) == 1:
             assert d.label == raws[k]
     assert stream.push(0.1 * (n + 20), *row, False) is None  # invalid: skipped
@@ -244,11 +250,11 @@ def test_hysteresis_gap_and_invalid_samples(
     assert all(d is None for d in after[:-1])
     assert after[-1] is not None
     with pytest.raises(ValueError, match="hysteresis"):
-        dg.DiagnosisStream(classifier, hysteresis=0)
+        DiagnosisStream(classifier, hysteresis=0)
 
 
 def test_idle_windows_give_no_evidence_and_do_not_flip_the_label(
-    loaded: tuple[NominalModel, dg.ClassifierModel],
+    loaded: tuple[NominalModel, ClassifierModel],
 ) -> None:
     _, classifier = loaded
     n = classifier.window_samples
@@ -256,13 +262,13 @@ def test_idle_windows_give_no_evidence_and_do_not_flip_the_label(
     idle = (0.0, 15.0, 0.0, 0.05, 0.0, 0.0)  # no turning sample: active_fraction 0
     rows = [driven] * (n + 30) + [idle] * (3 * n)
 
-    def run(**kw: float) -> list[dg.Decision]:
-        stream = dg.DiagnosisStream(classifier, hop_s=0.1, **kw)
+    def run(**kw: float) -> list[Decision]:
+        stream = DiagnosisStream(classifier, hop_s=0.1, **kw)
         out = [stream.push(0.1 * k, *row, True) for k, row in enumerate(rows)]
         return [d for d in out if d is not None]
 
     decisions = run()
-    assert decisions[25].label == decisions[25].raw_label != dg.UNKNOWN  # driven: own answer
+    assert decisions[25].label == decisions[25].raw_label != UNKNOWN  # driven: own answer
     # once fewer than 30 % of a window's samples turn (15 of 50), the window weighs nothing:
     # from then on (hysteresis 2: one window later) the label stays put
     quiet = 31 + n - 15
@@ -271,45 +277,45 @@ def test_idle_windows_give_no_evidence_and_do_not_flip_the_label(
     # without accumulation the label follows the raw labels (plain hysteresis)
     plain = run(evidence_tau_s=0.0)
     raws = [d.raw_label for d in plain]
-    label = dg.UNKNOWN
+    label = UNKNOWN
     for k, d in enumerate(plain):
         if k >= 1 and raws[k] == raws[k - 1]:
             label = raws[k]
         assert d.label == label
     with pytest.raises(ValueError, match="evidence_tau_s"):
-        dg.DiagnosisStream(classifier, evidence_tau_s=-1.0)
+        DiagnosisStream(classifier, evidence_tau_s=-1.0)
     with pytest.raises(ValueError, match="excitation_range"):
-        dg.DiagnosisStream(classifier, excitation_range=(0.6, 0.3))
+        DiagnosisStream(classifier, excitation_range=(0.6, 0.3))
 
 
 def test_healthy_and_fouled_are_told_apart_on_an_unseen_unit(
-    loaded: tuple[NominalModel, dg.ClassifierModel],
+    loaded: tuple[NominalModel, ClassifierModel],
 ) -> None:
     nominal, classifier = loaded
     for cond in ("nominal_15v", "biofouling"):
         trace = run_scenario("t100", cond, signal="multilevel", duration_s=60.0, seed=31)
-        raws = [d.raw_label for d in dg.trace_decisions(trace, nominal, classifier)]
+        raws = [d.raw_label for d in trace_decisions(trace, nominal, classifier)]
         assert len(raws) > 40
         assert np.mean(np.array(raws) == cond) >= 0.8, (cond, raws)
 
 
 def test_unknown_on_input_unlike_every_class(
-    loaded: tuple[NominalModel, dg.ClassifierModel],
+    loaded: tuple[NominalModel, ClassifierModel],
 ) -> None:
     nominal, classifier = loaded
     wild = run_scenario("t100", "nominal_15v", signal="multilevel", duration_s=40.0,
                         voltage=24.0, seed=31)  # fmt: skip
-    raws = np.array([d.raw_label for d in dg.trace_decisions(wild, nominal, classifier)])
+    raws = np.array([d.raw_label for d in trace_decisions(wild, nominal, classifier)])
     assert len(raws) > 20
-    assert np.mean(raws == dg.UNKNOWN) >= 0.9
+    assert np.mean(raws == UNKNOWN) >= 0.9
     usual = run_scenario("t100", "nominal_13v", signal="multilevel", duration_s=40.0, seed=31)
-    raws = np.array([d.raw_label for d in dg.trace_decisions(usual, nominal, classifier)])
-    assert np.mean(raws == dg.UNKNOWN) <= 0.2
+    raws = np.array([d.raw_label for d in trace_decisions(usual, nominal, classifier)])
+    assert np.mean(raws == UNKNOWN) <= 0.2
 
 
 def test_onset_latency_needs_the_label_to_stay() -> None:
-    def d(t: float, label: str) -> dg.Decision:
-        return dg.Decision(t, label, label, {}, 1.0, 10.0, t - 10.0, 0.0)
+    def d(t: float, label: str) -> Decision:
+        return Decision(t, label, label, {}, 1.0, 10.0, t - 10.0, 0.0)
 
     seq = [d(50, "nominal_15v"), d(61, "biofouling"), d(62, "nominal_15v"), d(63, "biofouling"),
            d(64, "biofouling")]  # fmt: skip
@@ -338,7 +344,7 @@ def test_cli_train_and_diagnose_json_has_design_keys(models: Path, tmp_path: Pat
     result = json.loads(js.read_text())
     assert set(result) == {"overall", "windows"}
     assert set(result["overall"]) == {"label", "confidence"}
-    assert result["overall"]["label"] in (*CLASS_NAMES, dg.UNKNOWN)
+    assert result["overall"]["label"] in (*CLASS_NAMES, UNKNOWN)
     assert result["windows"]
     for w in result["windows"]:
         assert {"t_start", "t_end", "label", "probabilities"} <= set(w)

@@ -12,21 +12,19 @@ import numpy as np
 import pytest
 
 from thruster_fdd.cli import main
-from thruster_fdd.core.data import write_trace_csv
-from thruster_fdd.core.discrepancy import (
-    BASE_RANGE,
+from thruster_fdd.core.discrepancy.cases import PLAUSIBLE, make_case
+from thruster_fdd.core.discrepancy.fit import BASE_RANGE, calibrate
+from thruster_fdd.core.discrepancy.measure import (
     Measured,
-    calibrate,
     noise_free,
-    prepare,
-    run,
+    prepare_measured,
     simulate_model,
-    start_config,
 )
-from thruster_fdd.core.discrepancy_cases import PLAUSIBLE, make_case
-from thruster_fdd.core.physics import simulate
-from thruster_fdd.core.signals import make_signal
-from thruster_fdd.core.simconfig import load_config
+from thruster_fdd.core.discrepancy.search import run_workflow, start_config
+from thruster_fdd.core.sim.config import load_config
+from thruster_fdd.core.sim.physics import simulate
+from thruster_fdd.core.sim.signals import make_signal
+from thruster_fdd.core.traces.csv_io import write_trace_csv
 
 REPO = Path(__file__).resolve().parents[2]
 T200_DATA = REPO.parent / "shared" / "data" / "t200"
@@ -49,7 +47,7 @@ CLI_CASE = (("deadband",), 1)
 def _run_case(key: str) -> tuple:
     hidden, seed = CI_CASES[key]
     case = make_case(hidden, seed, duration_s=DURATION_S)
-    result, _ = run(case.trace, case.start, workers=1, progress=False)
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     return case, result
 
 
@@ -136,7 +134,7 @@ def _short_trace(duration: float = 60.0):
 def test_prepare_rejects_bad_traces() -> None:
     config, trace = _short_trace()
     with pytest.raises(ValueError, match="too short"):
-        prepare(
+        prepare_measured(
             replace(
                 trace,
                 t=trace.t[:50],
@@ -151,14 +149,14 @@ def test_prepare_rejects_bad_traces() -> None:
     rpm = trace.rpm.copy()
     rpm[5] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
-        prepare(replace(trace, rpm=rpm), config)
+        prepare_measured(replace(trace, rpm=rpm), config)
     with pytest.raises(ValueError, match="never turns"):
-        prepare(replace(trace, rpm=np.zeros_like(trace.rpm)), config)
+        prepare_measured(replace(trace, rpm=np.zeros_like(trace.rpm)), config)
 
 
 def test_prepare_splits_and_estimates_noise() -> None:
     config, trace = _short_trace()
-    data = prepare(trace, config)
+    data = prepare_measured(trace, config)
     assert isinstance(data, Measured)
     assert not np.any(data.fit & data.held)
     assert np.all(data.fit | data.held)
@@ -185,7 +183,7 @@ def test_prepare_despikes_glitches_not_responses() -> None:
     ramp = 400
     command[ramp - 10 : ramp + 10] = np.linspace(0.2, 0.6, 20)
     rpm[ramp] += 3000.0
-    data = prepare(replace(trace, rpm=rpm, command=command), config)
+    data = prepare_measured(replace(trace, rpm=rpm, command=command), config)
     assert abs(data.rpm[hold] - trace.rpm[hold]) < 100.0
     assert abs(data.rpm[ramp] - rpm[ramp] + 3000.0) < 100.0
     assert data.rpm[rest] == 0.0
@@ -197,7 +195,7 @@ def test_base_parameters_stay_near_the_anchor() -> None:
     t100 = load_config("t100")
     truth = replace(t100, params=replace(t100.params, r_ohm=0.2 * t100.params.r_ohm))
     t, u = make_signal("multilevel", 60.0, 10.0, seed=0)
-    data = prepare(simulate(truth, t, u, seed=0), t100)
+    data = prepare_measured(simulate(truth, t, u, seed=0), t100)
     low = t100.params.r_ohm / BASE_RANGE
     edge = replace(t100, params=replace(t100.params, r_ohm=low))
     keys = ("params.r_ohm",)
@@ -214,7 +212,7 @@ def test_t200_bench_data_names_the_deadband(load_script) -> None:
     (scripts/calibrate_t200.py, an independent fit of the same sheets), and nothing else."""
     trace = load_script("t200_to_trace").steps_trace(T200_DATA)
     t200 = load_config("t200")
-    result, _ = run(trace, t200, ["deadband"], workers=1, progress=False)
+    result, _ = run_workflow(trace, t200, ["deadband"], workers=1, progress=False)
     assert result.added == ("deadband",)
     width = result.final.config.effect("deadband").width
     assert abs(width / t200.effect("deadband").width - 1.0) <= 0.05
@@ -227,7 +225,7 @@ def test_model_simulation_equals_simulator() -> None:
     t, u = make_signal("multilevel", 60.0, 10.0, seed=1)
     truth = simulate(config, t, u, voltage=15.0)
     flat = replace(truth, voltage=np.full_like(truth.voltage, 15.0) - 0.03 * truth.current)
-    data = prepare(flat, config)
+    data = prepare_measured(flat, config)
     sim = simulate_model(config, data)
     np.testing.assert_allclose(sim["rpm"], truth.rpm, atol=1e-6)
     np.testing.assert_allclose(sim["current"], truth.current, atol=1e-9)

@@ -12,15 +12,24 @@ from pathlib import Path
 import pytest
 import serial
 
-from thruster_fdd.core import protocol
-from thruster_fdd.core.emulator import (
+from thruster_fdd.core.bridge.emulator import (
     BridgeEmulator,
     EmulatorSettings,
     OutOfRange,
     SetCondition,
     SkipSequence,
 )
-from thruster_fdd.core.physics import ThrusterSimulator, load_config
+from thruster_fdd.core.bridge.plausibility import check_telemetry
+from thruster_fdd.core.bridge.tfdd import (
+    CommandFrame,
+    DecodedFrame,
+    FrameDecoder,
+    StatusFlag,
+    classify_seq,
+    encode_command,
+)
+from thruster_fdd.core.sim.config import load_config
+from thruster_fdd.core.sim.physics import ThrusterSimulator
 
 
 @pytest.fixture
@@ -42,10 +51,10 @@ def running(tmp_path: Path) -> Iterator[tuple[BridgeEmulator, serial.Serial]]:
 
 
 def _read_frames(
-    port: serial.Serial, seconds: float, decoder: protocol.FrameDecoder | None = None
-) -> list[protocol.DecodedFrame]:
-    decoder = decoder or protocol.FrameDecoder()
-    frames: list[protocol.DecodedFrame] = []
+    port: serial.Serial, seconds: float, decoder: FrameDecoder | None = None
+) -> list[DecodedFrame]:
+    decoder = decoder or FrameDecoder()
+    frames: list[DecodedFrame] = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         frames += decoder.feed(port.read(256))
@@ -66,7 +75,7 @@ def test_telemetry_at_rate_with_consecutive_sequence(running: tuple) -> None:
 def test_commands_drive_the_thruster_and_the_bridge_watchdog_stops_it(running: tuple) -> None:
     emulator, port = running
     for seq in range(40):
-        port.write(protocol.encode_command(protocol.CommandFrame(1800, 300), seq))
+        port.write(encode_command(CommandFrame(1800, 300), seq))
         time.sleep(0.05)
     assert emulator.pwm_us == 1800
     assert emulator.last_sample is not None
@@ -74,19 +83,19 @@ def test_commands_drive_the_thruster_and_the_bridge_watchdog_stops_it(running: t
     time.sleep(0.5)
     assert emulator.pwm_us == 1500
     frames = _read_frames(port, 0.3)
-    assert frames[-1].message.status & protocol.StatusFlag.ESC_TIMEOUT
+    assert frames[-1].message.status & StatusFlag.ESC_TIMEOUT
 
 
 def test_injected_faults_show_on_the_wire(running: tuple) -> None:
     emulator, port = running
-    decoder = protocol.FrameDecoder()
+    decoder = FrameDecoder()
     frames = _read_frames(port, 0.2, decoder)
     emulator.inject(SkipSequence(9))
     emulator.inject(OutOfRange(2))
     frames += _read_frames(port, 0.5, decoder)
-    gaps = [protocol.classify_seq(a.seq, b.seq) for a, b in pairwise(frames)]
+    gaps = [classify_seq(a.seq, b.seq) for a, b in pairwise(frames)]
     assert any(g.status == "lost" and g.lost == 9 for g in gaps)
-    assert sum(1 for f in frames if protocol.check_telemetry(f.message)) == 2
+    assert sum(1 for f in frames if check_telemetry(f.message)) == 2
     emulator.inject(SetCondition("biofouling"))
     time.sleep(0.1)
     assert emulator._sim.condition == "biofouling"

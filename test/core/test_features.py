@@ -5,10 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thruster_fdd.core import features as ft
-from thruster_fdd.core.diagnosis import Z_CLIP, ClassifierModel
-from thruster_fdd.core.paths import default_models_dir
-from thruster_fdd.core.scenario import run_scenario
+from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.diagnosis.features import (
+    ACTIVE_RPM,
+    FEATURE_NAMES,
+    HF_HZ,
+    HIGH_RPM,
+    LF_HZ,
+    MIN_REGION_SAMPLES,
+    window_features,
+)
+from thruster_fdd.core.diagnosis.model import Z_CLIP, ClassifierModel
+from thruster_fdd.core.sim.scenario import run_scenario
 
 
 def _mad(x: np.ndarray) -> float:
@@ -16,7 +24,7 @@ def _mad(x: np.ndarray) -> float:
 
 
 def _ratio(num: np.ndarray, den: np.ndarray, mask: np.ndarray) -> float:
-    if int(mask.sum()) < ft.MIN_REGION_SAMPLES:
+    if int(mask.sum()) < MIN_REGION_SAMPLES:
         return float("nan")
     d = float(den[mask].sum())
     return float(num[mask].sum()) / d if d > 0 else float("nan")
@@ -27,8 +35,8 @@ def _hf_fraction(x: np.ndarray, dt: float) -> float:
     detrended = x - x.mean() - np.polyfit(t, x, 1)[0] * t
     power = np.abs(np.fft.rfft(detrended)) ** 2
     freq = np.fft.rfftfreq(len(x), dt)
-    total = float(power[freq >= ft.LF_HZ].sum())
-    high = freq >= ft.HF_HZ
+    total = float(power[freq >= LF_HZ].sum())
+    high = freq >= HF_HZ
     if not high.any() or total <= 1e-20 * len(x) * float(x @ x):
         return float("nan")
     return float(power[high].sum()) / total
@@ -39,12 +47,12 @@ def reference_features(w: np.ndarray, dt: float) -> np.ndarray:
     cmd, volt, rpm, cur, res_rpm, res_cur = w.T
     pred_rpm, pred_cur = rpm - res_rpm, cur - res_cur
     speed = np.abs(pred_rpm)
-    active = speed >= ft.ACTIVE_RPM
-    low, high = active & (speed < ft.HIGH_RPM), speed >= ft.HIGH_RPM
+    active = speed >= ACTIVE_RPM
+    low, high = active & (speed < HIGH_RPM), speed >= HIGH_RPM
     signed_res = res_rpm * np.sign(pred_rpm)
     cur_den = np.maximum(np.abs(pred_cur), 0.3)
     krpm = np.abs(rpm) / 1000.0
-    turning = krpm >= ft.ACTIVE_RPM / 1000.0
+    turning = krpm >= ACTIVE_RPM / 1000.0
     ripple = _mad(np.diff(cur)) / np.sqrt(2.0)
     return np.array(
         [
@@ -82,7 +90,7 @@ def test_compiled_features_equal_the_numpy_definition(condition: str) -> None:
     windows = [w[s : s + n] for s in range(0, len(w) - 200, 53) for n in (200, 41, 39, 4)]
     windows += [idle, w[::2][:100]]  # a constant window; a strided (non-contiguous) one
     for win in windows:
-        got, want = ft.window_features(win, 0.1), reference_features(win, 0.1)
+        got, want = window_features(win, 0.1), reference_features(win, 0.1)
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12, equal_nan=True)
 
@@ -90,7 +98,7 @@ def test_compiled_features_equal_the_numpy_definition(condition: str) -> None:
 def test_compiled_decision_equals_the_numpy_definition() -> None:
     model = ClassifierModel.load(default_models_dir() / "classifier")
     rng = np.random.default_rng(1)
-    n = len(ft.FEATURE_NAMES)
+    n = len(FEATURE_NAMES)
     x = model._center + model._scale * rng.normal(scale=3.0, size=(64, n))
     x[::5, 7] = np.nan
     probs, dist = model.predict_proba(x)

@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from thruster_fdd.core.effects import make_effect
-from thruster_fdd.core.freerun import free_run
-from thruster_fdd.core.physics import Measurement, SimConfig, ThrusterSimulator, load_config
-from thruster_fdd.core.simconfig import set_effect
+from thruster_fdd.core.sim.config import Measurement, SimConfig, load_config, set_effect
+from thruster_fdd.core.sim.effects import make_effect
+from thruster_fdd.core.sim.freerun import free_run
+from thruster_fdd.core.sim.physics import ThrusterSimulator
 
 RTOL = 1e-9
 """Relative tolerance of the comparison (the kernel keeps the reference's operation order)."""

@@ -6,61 +6,73 @@ import math
 
 import pytest
 
-from thruster_fdd.core import link
+from thruster_fdd.core.bridge.link import (
+    ERROR,
+    OK,
+    STALE,
+    WARN,
+    LinkWindow,
+    assess_link,
+    clamp_command,
+    command_to_pwm,
+    frame_stamps,
+    pwm_to_command,
+    slew,
+)
 
 
 @pytest.mark.parametrize(("value", "expected"), [(0.3, 0.3), (1.7, 1.0), (-4.0, -1.0)])
 def test_clamp(value: float, expected: float) -> None:
-    assert link.clamp_command(value) == expected
+    assert clamp_command(value) == expected
 
 
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
 def test_clamp_refuses_non_finite(value: float) -> None:
     with pytest.raises(ValueError, match="finite"):
-        link.clamp_command(value)
+        clamp_command(value)
 
 
 def test_slew_limits_rate_and_reaches_target() -> None:
     value = 0.0
     for _ in range(10):
-        value = link.slew(value, 1.0, 0.05, 4.0)
+        value = slew(value, 1.0, 0.05, 4.0)
     assert value == pytest.approx(1.0)
-    assert link.slew(0.0, 1.0, 0.05, 4.0) == pytest.approx(0.2)
-    assert link.slew(0.0, -1.0, 0.05, 4.0) == pytest.approx(-0.2)
-    assert link.slew(0.3, -1.0, 0.05, 0.0) == -1.0
+    assert slew(0.0, 1.0, 0.05, 4.0) == pytest.approx(0.2)
+    assert slew(0.0, -1.0, 0.05, 4.0) == pytest.approx(-0.2)
+    assert slew(0.3, -1.0, 0.05, 0.0) == -1.0
 
 
 def test_pwm_mapping() -> None:
-    assert link.command_to_pwm(0.0) == 1500
-    assert link.command_to_pwm(-1.0) == 1100
-    assert link.command_to_pwm(2.0) == 1900
-    assert link.pwm_to_command(1600) == pytest.approx(0.25)
+    assert command_to_pwm(0.0) == 1500
+    assert command_to_pwm(-1.0) == 1100
+    assert command_to_pwm(2.0) == 1900
+    assert pwm_to_command(1600) == pytest.approx(0.25)
 
 
-def _window(**kw: object) -> link.LinkWindow:
+def _window(**kw: object) -> LinkWindow:
     base = {"period_s": 1.0, "expected_rate_hz": 50.0, "port_open": True, "frames": 50}
     base["since_frame_s"] = 0.02
     base.update(kw)
-    return link.LinkWindow(**base)  # type: ignore[arg-type]
+    return LinkWindow(**base)  # type: ignore[arg-type]
 
 
 def test_healthy_link_is_ok() -> None:
-    health = link.assess_link(_window())
-    assert health.level == link.OK
+    health = assess_link(_window())
+    assert health.level == OK
     assert "50.0 Hz" in health.message
     assert ("telemetry_rate_hz", "50.0") in health.values
 
 
 def test_closed_port_is_error_with_reason() -> None:
-    health = link.assess_link(_window(port_open=False, port_error="/dev/x: no such file"))
-    assert health.level == link.ERROR
+    health = assess_link(_window(port_open=False, port_error="/dev/x: no such file"))
+    assert health.level == ERROR
     assert "no such file" in health.message
 
 
 @pytest.mark.parametrize("since", [None, 0.5])
 def test_silent_link_is_stale(since: float | None) -> None:
-    health = link.assess_link(_window(frames=0, since_frame_s=since))
-    assert health.level == link.STALE
+    health = assess_link(_window(frames=0, since_frame_s=since))
+    assert health.level == STALE
     assert "50 Hz" in health.message
 
 
@@ -76,25 +88,25 @@ def test_silent_link_is_stale(since: float | None) -> None:
     ],
 )
 def test_each_link_problem_is_a_named_warning(field: str, words: str) -> None:
-    health = link.assess_link(_window(**{field: 3}))
-    assert health.level == link.WARN
+    health = assess_link(_window(**{field: 3}))
+    assert health.level == WARN
     assert words in health.message
     assert "3" in health.message
 
 
 def test_watchdog_and_bridge_faults_warn() -> None:
-    assert "neutral" in link.assess_link(_window(watchdog_neutral=True)).message
-    assert "ADC_FAULT" in link.assess_link(_window(bridge_faults="ADC_FAULT")).message
+    assert "neutral" in assess_link(_window(watchdog_neutral=True)).message
+    assert "ADC_FAULT" in assess_link(_window(bridge_faults="ADC_FAULT")).message
 
 
 def test_frame_stamps_follow_the_bridge_clock_and_increase() -> None:
-    assert link.frame_stamps(10_000_000, []) == []
-    assert link.frame_stamps(10_000_000, [5]) == [10_000_000]
-    stamps = link.frame_stamps(10_000_000, [1_000, 1_020, 1_040])
+    assert frame_stamps(10_000_000, []) == []
+    assert frame_stamps(10_000_000, [5]) == [10_000_000]
+    stamps = frame_stamps(10_000_000, [1_000, 1_020, 1_040])
     assert stamps == [9_960_000, 9_980_000, 10_000_000]
-    wrapped = link.frame_stamps(10_000_000, [(1 << 32) - 10, 10])
+    wrapped = frame_stamps(10_000_000, [(1 << 32) - 10, 10])
     assert wrapped == [9_980_000, 10_000_000]
-    no_clock = link.frame_stamps(10_000_000, [None, None, None], period_ns=5)
+    no_clock = frame_stamps(10_000_000, [None, None, None], period_ns=5)
     assert no_clock == [9_999_990, 9_999_995, 10_000_000]
-    same = link.frame_stamps(10_000_000, [7, 7])
+    same = frame_stamps(10_000_000, [7, 7])
     assert same[0] < same[1]

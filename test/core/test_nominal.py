@@ -12,20 +12,17 @@ import pytest
 import torch
 
 from thruster_fdd import cli
-from thruster_fdd.core import evaluation as ev
-from thruster_fdd.core.data import Trace, write_trace_csv
-from thruster_fdd.core.nominal import (
-    CARD_FILE,
-    PROGRAM_FILE,
-    IqrScaler,
-    ModelSpec,
-    NominalModel,
-    _check_fast_path,
-    read_card,
+from thruster_fdd.core.artifact import CARD_FILE, PROGRAM_FILE
+from thruster_fdd.core.nominal.card import read_nominal_card
+from thruster_fdd.core.nominal.evaluation import (
+    ProtocolConfig,
+    run_table2,
+    spec_for,
+    table2_markdown,
 )
-from thruster_fdd.core.physics import load_config, simulate
-from thruster_fdd.core.signals import make_signal
-from thruster_fdd.core.training import (
+from thruster_fdd.core.nominal.runtime import NominalModel, _check_fast_path
+from thruster_fdd.core.nominal.spec import IqrScaler, ModelSpec
+from thruster_fdd.core.nominal.training import (
     TrainConfig,
     lag_windows,
     predict_sequence,
@@ -34,6 +31,11 @@ from thruster_fdd.core.training import (
     train_model,
     train_nominal,
 )
+from thruster_fdd.core.sim.config import load_config
+from thruster_fdd.core.sim.physics import simulate
+from thruster_fdd.core.sim.signals import make_signal
+from thruster_fdd.core.traces.csv_io import write_trace_csv
+from thruster_fdd.core.traces.data import Trace
 
 torch.set_num_threads(1)
 FAST = TrainConfig(epochs=4, finetune_epochs=2, horizon=10, batch_size=64)
@@ -107,7 +109,7 @@ def test_online_step_equals_batch_predict(
 
 
 def test_series_parallel_export_feeds_back_both_outputs(sp_model_dir: Path) -> None:
-    card = read_card(sp_model_dir)
+    card = read_nominal_card(sp_model_dir)
     assert card.mode == "series-parallel"
     assert card.feedback == ("rpm", "current")
     assert card.training_metrics["validation"]["mode"] == "series-parallel"
@@ -151,7 +153,7 @@ def test_fast_path_equals_exported_program(model_dir: Path) -> None:
 
 
 def test_card_contract(model_dir: Path) -> None:
-    card = read_card(model_dir)
+    card = read_nominal_card(model_dir)
     assert card.kind == "nominal"
     assert card.inputs == ("command", "voltage")
     assert card.outputs == ("rpm", "current")
@@ -247,11 +249,11 @@ def test_lag_windows_use_the_past_only() -> None:
 
 @pytest.mark.parametrize("arch", ["mlp", "mlp_tdd", "narx_deadband", "lstm", "gru"])
 def test_other_regressors_train_and_predict(arch: str) -> None:
-    spec = ev.spec_for(arch)
+    spec = spec_for(arch)
     spec = replace(spec, hidden=(8,), input_lags=min(spec.input_lags, 6))
     seq = resample(_trace(duration=40.0), 0.1)
     net, _ = train_model(spec, [seq], replace(FAST, chunk=100))
-    from thruster_fdd.core.training import predict_sequence
+    from thruster_fdd.core.nominal.training import predict_sequence
 
     pred = predict_sequence(net, seq)
     assert pred.shape == (len(seq.u), 2)
@@ -284,7 +286,7 @@ def test_cli_train_then_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture[s
 
 
 def test_table2_smoke() -> None:
-    cfg = ev.ProtocolConfig(
+    cfg = ProtocolConfig(
         train_samples=600,
         test_samples=300,
         test_freqs=(0.01, 0.04),
@@ -293,7 +295,7 @@ def test_table2_smoke() -> None:
         sysidentpy=False,
         train=replace(FAST, epochs=15, finetune_epochs=3),
     )
-    scores = ev.run_table2(cfg)
+    scores = run_table2(cfg)
     assert {(s.model, s.mode) for s in scores} == {
         ("narx", "parallel"),
         ("narx", "series-parallel"),
@@ -301,6 +303,6 @@ def test_table2_smoke() -> None:
     assert len(scores) == 4
     sp = {s.freq: s for s in scores if s.mode == "series-parallel"}
     assert sp[0.01].rpm_r2 > 0.9  # one step ahead is easy even after a short training
-    table = ev.table2_markdown(scores, cfg)
+    table = table2_markdown(scores, cfg)
     assert "| paper NARX (Table 2) | ? | ? | 0.9745 | 0.6432 |" in table
     assert "| narx | parallel | 2 |" in table

@@ -10,29 +10,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thruster_fdd.core import physics
-from thruster_fdd.core.data import CLASS_NAMES
-from thruster_fdd.core.effects import EFFECTS, CurrentLimit, Deadband, EscLag, make_effect
-from thruster_fdd.core.physics import (
-    CONDITIONS,
+from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.sim import physics
+from thruster_fdd.core.sim.config import (
     Measurement,
     SimConfig,
-    StepMetrics,
-    ThrusterSimulator,
     add_effect,
     dump_config,
-    hysteresis_loop_area,
     load_config,
     perturb_unit,
     preset_names,
     remove_effect,
     replace_effect,
     set_effect,
-    simulate,
-    steady_state,
-    step_metrics,
 )
-from thruster_fdd.core.signals import make_signal
+from thruster_fdd.core.sim.effects import EFFECTS, CurrentLimit, Deadband, EscLag, make_effect
+from thruster_fdd.core.sim.metrics import StepMetrics, hysteresis_loop_area, step_metrics
+from thruster_fdd.core.sim.physics import ThrusterSimulator, simulate
+from thruster_fdd.core.sim.plant import CONDITION_SPECS
+from thruster_fdd.core.sim.signals import make_signal
+from thruster_fdd.core.sim.steady import steady_state
 
 REPO = Path(__file__).resolve().parents[2]
 T200_DATA = REPO.parent / "shared" / "data" / "t200"
@@ -322,7 +319,7 @@ def test_bad_inputs_raise() -> None:
         load_config("t300")
     with pytest.raises(ValueError, match="unknown condition"):
         steady_state(config, np.zeros(3), 15.0, condition="rusty")
-    assert set(CONDITIONS) == set(CLASS_NAMES)
+    assert set(CONDITION_SPECS) == set(CLASS_NAMES)
 
 
 def test_simulate_is_fast() -> None:

@@ -12,9 +12,11 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from thruster_fdd.core.protocol import (
+from thruster_fdd.core.bridge.crc import crc8_kiss, crc16_ccitt_false
+from thruster_fdd.core.bridge.kiss import KISS_FRAME_LEN, KissDecoder, KissFrame, encode_kiss
+from thruster_fdd.core.bridge.plausibility import TelemetrySample, check_telemetry, to_sample
+from thruster_fdd.core.bridge.tfdd import (
     HEADER_LEN,
-    KISS_FRAME_LEN,
     MAX_FRAME_LEN,
     MAX_PAYLOAD_LEN,
     SYNC,
@@ -22,25 +24,17 @@ from thruster_fdd.core.protocol import (
     DecodedFrame,
     DecoderStats,
     FrameDecoder,
-    KissDecoder,
-    KissFrame,
     MsgType,
     SeqCheck,
     StatusFlag,
     TelemetryFrame,
-    TelemetrySample,
     VersionFrame,
     VersionQuery,
-    check_telemetry,
     classify_seq,
-    crc8_kiss,
-    crc16_ccitt_false,
     encode_command,
-    encode_kiss,
     encode_telemetry,
     encode_version,
     encode_version_query,
-    to_sample,
 )
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from thruster_fdd.core.recording import McapRecorder, RecordingPolicy, read_recovered
+from thruster_fdd.core.traces.recording import McapRecorder, RecordingPolicy, read_recovered
 
 DEF = "float64 rpm\n"
 

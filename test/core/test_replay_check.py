@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from thruster_fdd.core.replay import ThrusterBag, check
+from thruster_fdd.core.traces.replay_check import ThrusterBag, check_replay
 
 
 def _bag(recorded: list[tuple[float, str]]) -> ThrusterBag:
@@ -15,7 +15,7 @@ def _live(n: int = 40, change_at: int = 20, t0: float = 100.0) -> list[tuple[flo
 
 def test_identical_stamps_and_labels_agree_fully() -> None:
     live = _live()
-    result = check(_bag(live), live)
+    result = check_replay(_bag(live), live)
     assert result.passed
     assert result.agreement == 1.0
     assert result.sequence == ["nominal_15v", "broken_blade_2"]
@@ -24,7 +24,7 @@ def test_identical_stamps_and_labels_agree_fully() -> None:
 def test_decisions_a_few_samples_out_of_phase_are_paired_with_the_nearest() -> None:
     live = _live()
     replayed = [(t + 0.3, label) for t, label in live]
-    result = check(_bag(live), replayed)
+    result = check_replay(_bag(live), replayed)
     assert result.passed
     assert result.agreement == 1.0
 
@@ -32,7 +32,7 @@ def test_decisions_a_few_samples_out_of_phase_are_paired_with_the_nearest() -> N
 def test_a_late_change_lowers_the_agreement_and_fails() -> None:
     live = _live()
     replayed = _live(change_at=26)
-    result = check(_bag(live), replayed, min_agreement=0.9)
+    result = check_replay(_bag(live), replayed, min_agreement=0.9)
     assert result.agreement == 34 / 40
     assert not result.passed
 
@@ -40,7 +40,7 @@ def test_a_late_change_lowers_the_agreement_and_fails() -> None:
 def test_decisions_far_from_any_recorded_one_are_not_counted() -> None:
     live = _live()
     replayed = [(t + 500.0, label) for t, label in live]
-    result = check(_bag(live), replayed)
+    result = check_replay(_bag(live), replayed)
     assert result.agreement == 0.0
     assert not result.passed
 
@@ -48,6 +48,6 @@ def test_decisions_far_from_any_recorded_one_are_not_counted() -> None:
 def test_a_different_sequence_fails_even_with_high_agreement() -> None:
     live = _live()
     replayed = [*live[:-1], (live[-1][0], "biofouling")]
-    result = check(_bag(live), replayed, min_agreement=0.9)
+    result = check_replay(_bag(live), replayed, min_agreement=0.9)
     assert result.agreement > 0.9
     assert not result.passed

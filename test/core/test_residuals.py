@@ -6,7 +6,14 @@ import math
 
 import pytest
 
-from thruster_fdd.core import residuals as r
+from thruster_fdd.core.nominal.residuals import (
+    INPUT_INVALID,
+    OK,
+    STATE_RESET,
+    WARMING_UP,
+    ResidualStream,
+    decimate,
+)
 
 
 class Persistence:
@@ -29,26 +36,26 @@ class Persistence:
         return prediction
 
 
-def _push(stream: r.ResidualStream, t: float, rpm: float = 1000.0, **kw: float):
+def _push(stream: ResidualStream, t: float, rpm: float = 1000.0, **kw: float):
     args = {"command": 0.3, "voltage": 15.0, "current": 2.0} | kw
     return stream.push(t, args["command"], args["voltage"], rpm, args["current"])
 
 
 def test_first_sample_warms_up_then_residuals_are_measured_minus_predicted() -> None:
-    stream = r.ResidualStream(Persistence())
+    stream = ResidualStream(Persistence())
     first = _push(stream, 0.0, rpm=1000.0)
     assert first is not None
-    assert first.flags == r.WARMING_UP
+    assert first.flags == WARMING_UP
     assert not first.valid
     second = _push(stream, 0.1, rpm=1100.0, current=2.5)
     assert second is not None
-    assert second.flags == r.OK
+    assert second.flags == OK
     assert second.residual_rpm == pytest.approx(100.0)
     assert second.residual_current_a == pytest.approx(0.5)
 
 
 def test_faster_telemetry_is_decimated_to_the_model_period() -> None:
-    stream = r.ResidualStream(Persistence())
+    stream = ResidualStream(Persistence())
     outputs = [_push(stream, i * 0.02) for i in range(51)]  # 50 Hz for 1 s
     fed = [o for o in outputs if o is not None]
     assert len(fed) == 11
@@ -57,23 +64,23 @@ def test_faster_telemetry_is_decimated_to_the_model_period() -> None:
 
 def test_time_gap_resets_state_and_flags() -> None:
     model = Persistence()
-    stream = r.ResidualStream(model, max_gap_periods=3.0)
+    stream = ResidualStream(model, max_gap_periods=3.0)
     _push(stream, 0.0)
     _push(stream, 0.1)
     after_gap = _push(stream, 1.0)
     assert after_gap is not None
-    assert after_gap.flags == r.STATE_RESET | r.WARMING_UP
+    assert after_gap.flags == STATE_RESET | WARMING_UP
     assert "gap" in after_gap.reason
     assert stream.resets == 1
-    assert _push(stream, 1.1).flags == r.OK
+    assert _push(stream, 1.1).flags == OK
 
 
 def test_sequence_going_back_resets() -> None:
-    stream = r.ResidualStream(Persistence())
+    stream = ResidualStream(Persistence())
     stream.push(0.0, 0.1, 15.0, 500.0, 1.0, sequence=10)
     out = stream.push(0.1, 0.1, 15.0, 500.0, 1.0, sequence=3)
     assert out is not None
-    assert out.flags & r.STATE_RESET
+    assert out.flags & STATE_RESET
 
 
 @pytest.mark.parametrize(
@@ -88,29 +95,29 @@ def test_sequence_going_back_resets() -> None:
 )
 def test_invalid_input_is_flagged_never_nan(field: str, value: float, words: str) -> None:
     model = Persistence()
-    stream = r.ResidualStream(model)
+    stream = ResidualStream(model)
     _push(stream, 0.0)
     _push(stream, 0.1)
     bad = _push(stream, 0.2, **{field: value})
     assert bad is not None
-    assert bad.flags == r.INPUT_INVALID
+    assert bad.flags == INPUT_INVALID
     assert words in bad.reason
     for number in (bad.measured_rpm, bad.predicted_rpm, bad.residual_rpm, bad.residual_current_a):
         assert math.isfinite(number)
     assert model.previous is None, "the model state must be reset after a bad sample"
-    assert _push(stream, 0.3).flags == r.WARMING_UP
+    assert _push(stream, 0.3).flags == WARMING_UP
 
 
 def test_rejects_a_gap_threshold_below_one_period() -> None:
     with pytest.raises(ValueError, match="max_gap_periods"):
-        r.ResidualStream(Persistence(), max_gap_periods=0.5)
+        ResidualStream(Persistence(), max_gap_periods=0.5)
 
 
 def test_decimate_matches_what_the_stream_feeds() -> None:
     import numpy as np
 
     t = np.cumsum(np.full(200, 0.02) + np.random.default_rng(0).uniform(-0.003, 0.003, 200))
-    stream = r.ResidualStream(Persistence())
+    stream = ResidualStream(Persistence())
     fed = np.array([_push(stream, float(ti)) is not None for ti in t])
-    np.testing.assert_array_equal(r.decimate(t, 0.1), fed)
+    np.testing.assert_array_equal(decimate(t, 0.1), fed)
     assert 35 <= fed.sum() <= 45

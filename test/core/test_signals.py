@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thruster_fdd.core.signals import STEP_HOLD_S, make_signal
+from thruster_fdd.core.sim.signals import STEP_HOLD_S, make_signal
 
 
 @pytest.mark.parametrize("spec", ["steps", "sine:0.02", "chirp", "multilevel", "mission"])

@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thruster_fdd.core.data import Trace, read_trace_csv, write_trace_csv
-from thruster_fdd.core.mcap_io import message_definition, read_trace_mcap, write_trace_mcap
-from thruster_fdd.core.scenario import run_scenario
-from thruster_fdd.core.trace_io import read_command_csv, read_traces, write_trace
+from thruster_fdd.core.sim.scenario import run_scenario
+from thruster_fdd.core.traces.csv_io import read_command_csv, read_trace_csv, write_trace_csv
+from thruster_fdd.core.traces.data import Trace
+from thruster_fdd.core.traces.files import read_traces, write_trace
+from thruster_fdd.core.traces.mcap_io import message_definition, read_trace_mcap, write_trace_mcap
 
 
 def _trace(n: int = 50, **kw: object) -> Trace:

@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 from probe import Probe, start_node
 
-from thruster_fdd.core.data import CLASS_NAMES
-from thruster_fdd.core.nominal import NominalModel
-from thruster_fdd.core.paths import default_models_dir
-from thruster_fdd.core.residuals import ResidualStream
-from thruster_fdd.core.scenario import run_scenario
+from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.nominal.residuals import ResidualStream
+from thruster_fdd.core.nominal.runtime import NominalModel
+from thruster_fdd.core.sim.scenario import run_scenario
 from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros

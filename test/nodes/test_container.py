@@ -53,7 +53,7 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
-    from thruster_fdd.core.scenario import run_scenario
+    from thruster_fdd.core.sim.scenario import run_scenario
     from thruster_fdd.nodes.nominal_model import RESIDUAL_QOS
 
     trace = run_scenario("t100", "broken_blade_2", signal="sine:0.02", duration_s=40, seed=4)

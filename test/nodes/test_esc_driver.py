@@ -17,8 +17,21 @@ from pathlib import Path
 import pytest
 from probe import Probe, start_node
 
-from thruster_fdd.core import emulator as emu
-from thruster_fdd.core.physics import ThrusterSimulator, load_config
+from thruster_fdd.core.bridge.emulator import (
+    BridgeEmulator,
+    CorruptCrc,
+    Disconnect,
+    DuplicateFrame,
+    EmulatorSettings,
+    Fault,
+    Garbage,
+    OutOfRange,
+    Silence,
+    SkipSequence,
+    Truncate,
+)
+from thruster_fdd.core.sim.config import load_config
+from thruster_fdd.core.sim.physics import ThrusterSimulator
 from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros
@@ -37,7 +50,7 @@ def _quiet_t100() -> object:
 class Rig:
     """The emulator, the driver process and the probe's collected messages."""
 
-    emulator: emu.BridgeEmulator
+    emulator: BridgeEmulator
     driver: subprocess.Popen[bytes]
     probe: Probe
     command_pub: object
@@ -67,7 +80,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
 
     link_path = tmp_path_factory.mktemp("pty") / "it.tty"
     simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=3)
-    emulator = emu.BridgeEmulator(simulator, link_path, emu.EmulatorSettings(rate_hz=RATE_HZ))
+    emulator = BridgeEmulator(simulator, link_path, EmulatorSettings(rate_hz=RATE_HZ))
     emulator.open()
     stop_event = threading.Event()
     thread = threading.Thread(target=emulator.run, args=(stop_event,), daemon=True)
@@ -157,7 +170,7 @@ def test_watchdog_falls_back_to_neutral(rig: Rig) -> None:
     assert rig.telemetry[-1].status & EscTelemetry.WATCHDOG_NEUTRAL
 
 
-def _inject_and_watch(rig: Rig, fault: emu.Fault, words: str) -> list[tuple[int, str]]:
+def _inject_and_watch(rig: Rig, fault: Fault, words: str) -> list[tuple[int, str]]:
     n0 = len(rig.diagnostics)
     rig.emulator.inject(fault)
     assert rig.spin_until(lambda: any(words in m for _, m in rig.diag_messages(n0)), 3.0), (
@@ -169,17 +182,15 @@ def _inject_and_watch(rig: Rig, fault: emu.Fault, words: str) -> list[tuple[int,
 @pytest.mark.parametrize(
     ("fault", "words"),
     [
-        (emu.Garbage(200), "noise"),
-        (emu.CorruptCrc(5), "CRC errors"),
-        (emu.Truncate(3), "truncated"),
-        (emu.DuplicateFrame(4), "duplicated"),
-        (emu.SkipSequence(7), "7 frames lost"),
-        (emu.OutOfRange(3), "implausible"),
+        (Garbage(200), "noise"),
+        (CorruptCrc(5), "CRC errors"),
+        (Truncate(3), "truncated"),
+        (DuplicateFrame(4), "duplicated"),
+        (SkipSequence(7), "7 frames lost"),
+        (OutOfRange(3), "implausible"),
     ],
 )
-def test_link_faults_are_reported_and_never_published(
-    rig: Rig, fault: emu.Fault, words: str
-) -> None:
+def test_link_faults_are_reported_and_never_published(rig: Rig, fault: Fault, words: str) -> None:
     n0 = len(rig.telemetry)
     messages = _inject_and_watch(rig, fault, words)
     assert any(level == 1 for level, m in messages if words in m)
@@ -196,13 +207,13 @@ def test_sequence_gap_flags_the_next_sample(rig: Rig) -> None:
     from thruster_fdd_msgs.msg import EscTelemetry
 
     n0 = len(rig.telemetry)
-    rig.emulator.inject(emu.SkipSequence(3))
+    rig.emulator.inject(SkipSequence(3))
     rig.spin_for(0.5)
     assert any(m.status & EscTelemetry.SEQUENCE_GAP for m in rig.telemetry[n0:])
 
 
 def test_silent_port_goes_stale_then_recovers(rig: Rig) -> None:
-    messages = _inject_and_watch(rig, emu.Silence(2.0), "no telemetry")
+    messages = _inject_and_watch(rig, Silence(2.0), "no telemetry")
     assert any(level == 3 for level, _ in messages)
     n0 = len(rig.telemetry)
     assert rig.spin_until(lambda: len(rig.telemetry) > n0 + 10, 4.0)
@@ -210,7 +221,7 @@ def test_silent_port_goes_stale_then_recovers(rig: Rig) -> None:
 
 def test_port_that_disappears_is_reopened_within_2_s(rig: Rig) -> None:
     n_diag = len(rig.diagnostics)
-    rig.emulator.inject(emu.Disconnect(1.5))
+    rig.emulator.inject(Disconnect(1.5))
     assert rig.spin_until(
         lambda: any(level == 2 and "not open" in m for level, m in rig.diag_messages(n_diag)), 3.0
     ), rig.diag_messages(n_diag)
@@ -236,8 +247,8 @@ def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:
 
     link_path = tmp_path / "kiss.tty"
     simulator = ThrusterSimulator(load_config("t100"), "nominal_15v", seed=4)
-    emulator = emu.BridgeEmulator(
-        simulator, link_path, emu.EmulatorSettings(rate_hz=RATE_HZ, protocol="kiss")
+    emulator = BridgeEmulator(
+        simulator, link_path, EmulatorSettings(rate_hz=RATE_HZ, protocol="kiss")
     )
     emulator.open()
     stop_event = threading.Event()

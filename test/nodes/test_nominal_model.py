@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from probe import Probe, start_node
 
-from thruster_fdd.core.paths import default_models_dir
-from thruster_fdd.core.scenario import run_scenario
+from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.sim.scenario import run_scenario
 from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros
@@ -162,7 +162,7 @@ def _send_some(rig: Rig, t0: float, n: int = 40) -> None:
 
 
 def test_a_new_model_is_picked_up_and_a_bad_one_refused(rig: Rig, tmp_path: Path) -> None:
-    from thruster_fdd.core.training import TrainConfig, train_nominal
+    from thruster_fdd.core.nominal.training import TrainConfig, train_nominal
 
     traces = [run_scenario("t100", "nominal_15v", signal="multilevel", duration_s=60, seed=5)]
     card = train_nominal(

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from probe import Probe, start_node
 
-from thruster_fdd.core.recording import read_recovered
+from thruster_fdd.core.traces.recording import read_recovered
 from thruster_fdd.lifetime import stop_children
 
 pytestmark = pytest.mark.ros

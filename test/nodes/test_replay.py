@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from thruster_fdd.core.diagnosis import diagnose_trace
-from thruster_fdd.core.paths import default_models_dir
-from thruster_fdd.core.trace_io import read_traces
+from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.diagnosis.offline import diagnose_trace
+from thruster_fdd.core.traces.files import read_traces
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

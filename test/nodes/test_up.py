@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from thruster_fdd.core.paths import default_models_dir
+from thruster_fdd.core.artifact import default_models_dir
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -22,7 +22,7 @@ def _children_of(pid: int) -> list[int]:
 def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> None:
     from mcap.reader import make_reader
 
-    from thruster_fdd.core.mcap_io import read_trace_mcap
+    from thruster_fdd.core.traces.mcap_io import read_trace_mcap
 
     cmd = ["thruster-fdd", "up", "--thrusters", "2", "--duration", "12", "--print-period", "2"]
     proc = subprocess.Popen(

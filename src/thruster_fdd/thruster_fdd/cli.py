@@ -10,7 +10,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from thruster_fdd.core.data import CLASS_NAMES
+from thruster_fdd.core.labels import CLASS_NAMES
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -136,7 +136,7 @@ def _record_training_files(out_dir: Path, sources: list[Path]) -> None:
     """Add each training file's name and SHA-256 to the exported card's ``extra``."""
     import json
 
-    from thruster_fdd.core.trace_io import file_digests
+    from thruster_fdd.core.traces.files import file_digests
 
     card_path = out_dir / "model_card.json"
     card = json.loads(card_path.read_text())
@@ -147,8 +147,8 @@ def _record_training_files(out_dir: Path, sources: list[Path]) -> None:
 def _run_train_classifier(args: argparse.Namespace) -> int:
     import torch
 
-    from thruster_fdd.core.diagnosis import ClassifierConfig, train_classifier
-    from thruster_fdd.core.trace_io import read_traces
+    from thruster_fdd.core.diagnosis.training import ClassifierConfig, train_classifier
+    from thruster_fdd.core.traces.files import read_traces
 
     if args.epochs < 1:
         raise UsageError(f"--epochs must be >= 1, got {args.epochs}")
@@ -171,8 +171,8 @@ def _run_train_classifier(args: argparse.Namespace) -> int:
 def _run_train_nominal(args: argparse.Namespace) -> int:
     import torch
 
-    from thruster_fdd.core.trace_io import read_traces
-    from thruster_fdd.core.training import default_config, train_nominal
+    from thruster_fdd.core.nominal.training import default_config, train_nominal
+    from thruster_fdd.core.traces.files import read_traces
 
     if not 0.0 <= args.validation_fraction < 1.0:
         raise UsageError(f"--validation-fraction must be in [0, 1), got {args.validation_fraction}")
@@ -262,16 +262,22 @@ def _run_evaluate(args: argparse.Namespace) -> int:
 
     import torch
 
-    from thruster_fdd.core import evaluation as ev
+    from thruster_fdd.core.nominal.evaluation import (
+        ProtocolConfig,
+        evaluate_model_on_traces,
+        plot_table2_predictions,
+        run_table2,
+        table2_markdown,
+    )
 
     torch.set_num_threads(1)
     if args.model is not None:
-        from thruster_fdd.core.nominal import NominalModel
-        from thruster_fdd.core.trace_io import read_traces
+        from thruster_fdd.core.nominal.runtime import NominalModel
+        from thruster_fdd.core.traces.files import read_traces
 
         if not args.data:
             raise UsageError("evaluate nominal --model needs --data TRACE...")
-        result = ev.evaluate_model_on_traces(
+        result = evaluate_model_on_traces(
             NominalModel.load(args.model), read_traces(args.data), args.mode
         )
         text = json.dumps(result, indent=2)
@@ -282,7 +288,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         return EXIT_OK
     if args.seeds < 1 or args.train_samples < 100 or args.test_samples < 100:
         raise UsageError("need --seeds >= 1 and --train-samples, --test-samples >= 100")
-    cfg = ev.ProtocolConfig(
+    cfg = ProtocolConfig(
         rate_hz=args.rate,
         train_samples=args.train_samples,
         test_samples=args.test_samples,
@@ -291,16 +297,16 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     )
     if args.epochs is not None:
         cfg = replace(cfg, train=replace(cfg.train, epochs=args.epochs))
-    scores = ev.run_table2(cfg, progress=True)
+    scores = run_table2(cfg, progress=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    table = ev.table2_markdown(scores, cfg)
+    table = table2_markdown(scores, cfg)
     (args.out / "table2.md").write_text(table)
     rows = [dict(vars(s), r2=s.r2) for s in scores]
     json_path = args.json if args.json is not None else args.out / "table2.json"
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(rows, indent=1) + "\n")
     if not args.no_plots:
-        ev.plot_table2_predictions(cfg, args.out)
+        plot_table2_predictions(cfg, args.out)
     print(table)
     print(f"wrote {args.out / 'table2.md'}, {json_path}")
     return EXIT_OK
@@ -309,7 +315,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
 def _run_evaluate_classifier(args: argparse.Namespace) -> int:
     import torch
 
-    from thruster_fdd.core.classifier_eval import run_evaluation, table3_markdown
+    from thruster_fdd.core.diagnosis.evaluation import run_evaluation
+    from thruster_fdd.core.diagnosis.table3 import table3_markdown
 
     torch.set_num_threads(1)
     out = args.out if args.out is not None else Path("out/table3")
@@ -348,8 +355,8 @@ def _run_diagnose(args: argparse.Namespace) -> int:
 
     import torch
 
-    from thruster_fdd.core.diagnosis import diagnose_trace
-    from thruster_fdd.core.trace_io import read_traces
+    from thruster_fdd.core.diagnosis.offline import diagnose_trace
+    from thruster_fdd.core.traces.files import read_traces
 
     torch.set_num_threads(1)
     if args.trace.is_dir() or not args.trace.is_file():
@@ -398,10 +405,10 @@ def _add_discrepancy(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     def run(args: argparse.Namespace) -> int:
-        from thruster_fdd.core.discrepancy import run as run_discrepancy
-        from thruster_fdd.core.discrepancy_report import write_report
-        from thruster_fdd.core.simconfig import load_config
-        from thruster_fdd.core.trace_io import read_traces
+        from thruster_fdd.core.discrepancy.report import write_report
+        from thruster_fdd.core.discrepancy.search import run_workflow as run_discrepancy
+        from thruster_fdd.core.sim.config import load_config
+        from thruster_fdd.core.traces.files import read_traces
 
         if args.measured.is_dir() or not args.measured.is_file():
             raise UsageError(f"--measured {args.measured}: no such trace file")
@@ -516,8 +523,8 @@ def _add_emulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
-    from thruster_fdd.core.scenario import run_scenario
-    from thruster_fdd.core.trace_io import write_trace
+    from thruster_fdd.core.sim.scenario import run_scenario
+    from thruster_fdd.core.traces.files import write_trace
 
     if args.out.suffix not in (".csv", ".mcap"):
         raise UsageError(f"--out must end in .csv or .mcap, got {args.out}")

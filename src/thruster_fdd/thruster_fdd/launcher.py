@@ -23,7 +23,7 @@ from typing import Any
 
 import yaml
 
-from thruster_fdd.core.data import CLASS_NAMES
+from thruster_fdd.core.labels import CLASS_NAMES
 from thruster_fdd.lifetime import child_env, stop_children, stop_with_parent
 
 DESCRIPTION = (
@@ -231,7 +231,7 @@ def run_up(args: argparse.Namespace) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from thruster_fdd.core.paths import default_models_dir
+    from thruster_fdd.core.artifact import default_models_dir
     from thruster_fdd.nodes.monitor import Monitor
 
     rate, plans = plan_from_args(args)
@@ -316,8 +316,9 @@ def run_up(args: argparse.Namespace) -> int:
 
 def run_emulate(args: argparse.Namespace) -> int:
     """Run one bridge emulator until SIGINT/SIGTERM."""
-    from thruster_fdd.core.emulator import BridgeEmulator, EmulatorSettings, SetCondition
-    from thruster_fdd.core.physics import ThrusterSimulator, load_config
+    from thruster_fdd.core.bridge.emulator import BridgeEmulator, EmulatorSettings, SetCondition
+    from thruster_fdd.core.sim.config import load_config
+    from thruster_fdd.core.sim.physics import ThrusterSimulator
 
     simulator = ThrusterSimulator(
         load_config(args.preset), args.condition, voltage=args.voltage, seed=args.seed

@@ -23,7 +23,7 @@ import time
 from collections import deque
 from pathlib import Path
 
-from thruster_fdd.core.replay import ReplayCheck, ThrusterBag, check, load_bag
+from thruster_fdd.core.traces.replay_check import ReplayCheck, ThrusterBag, check_replay, load_bag
 from thruster_fdd.lifetime import child_env, stop_children
 
 DESCRIPTION = (
@@ -149,13 +149,13 @@ def run_replay(args: argparse.Namespace) -> int:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
-    from thruster_fdd.core.nominal import read_card
-    from thruster_fdd.core.paths import default_models_dir
+    from thruster_fdd.core.artifact import default_models_dir
+    from thruster_fdd.core.nominal.card import read_nominal_card
 
     if not args.bag.is_file():
         raise ValueError(f"{args.bag}: no such recording")
     models = (args.models or default_models_dir()).resolve()
-    period = read_card(models / "nominal").sample_time_s
+    period = read_nominal_card(models / "nominal").sample_time_s
     bags = load_bag(args.bag, period)
     procs = _start_nodes(bags, models)
     context = Context()
@@ -274,7 +274,7 @@ def run_replay(args: argparse.Namespace) -> int:
         rclpy.try_shutdown(context=context)
     span = max((b.stamps_ns[-1] - b.stamps_ns[0]) * 1e-9 for b in bags)
     results: list[ReplayCheck] = [
-        check(b, diagnoses[b.thruster_id], min_agreement=args.min_agreement) for b in bags
+        check_replay(b, diagnoses[b.thruster_id], min_agreement=args.min_agreement) for b in bags
     ]
     print(
         f"replayed {total} samples ({span:.0f} s of {len(bags)} thruster(s)) in {wall:.1f} s "

@@ -19,8 +19,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from thruster_fdd_msgs.msg import Diagnosis, Residual
 
-from thruster_fdd.core.diagnosis import ClassifierModel, Decision, DiagnosisStream
-from thruster_fdd.core.paths import default_models_dir
+from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.diagnosis.model import ClassifierModel
+from thruster_fdd.core.diagnosis.stream import Decision, DiagnosisStream
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,

@@ -12,7 +12,7 @@ from typing import Any
 from rclpy.node import Node
 from thruster_fdd_msgs.msg import ThrusterCommand
 
-from thruster_fdd.core.signals import make_signal
+from thruster_fdd.core.sim.signals import make_signal
 from thruster_fdd.nodes.common import NO_PUB_EVENTS, RELIABLE_10, declare_parameters, run
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (

@@ -22,7 +22,27 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
-from thruster_fdd.core import link, protocol
+from thruster_fdd.core.bridge.kiss import KissDecoder, KissFrame
+from thruster_fdd.core.bridge.link import (
+    LinkWindow,
+    assess_link,
+    clamp_command,
+    command_to_pwm,
+    frame_stamps,
+    pwm_to_command,
+    slew,
+)
+from thruster_fdd.core.bridge.plausibility import TelemetrySample, check_telemetry, to_sample
+from thruster_fdd.core.bridge.tfdd import (
+    CommandFrame,
+    DecodedFrame,
+    DecoderStats,
+    FrameDecoder,
+    StatusFlag,
+    TelemetryFrame,
+    classify_seq,
+    encode_command,
+)
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
@@ -54,14 +74,12 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 class _Received:
     """A decoded frame and the host time it arrived."""
 
-    frame: protocol.DecodedFrame | protocol.KissFrame
+    frame: DecodedFrame | KissFrame
     stamp_ns: int
 
 
-def _mcu_time_us(frame: protocol.DecodedFrame | protocol.KissFrame) -> int | None:
-    if isinstance(frame, protocol.DecodedFrame) and isinstance(
-        frame.message, protocol.TelemetryFrame
-    ):
+def _mcu_time_us(frame: DecodedFrame | KissFrame) -> int | None:
+    if isinstance(frame, DecodedFrame) and isinstance(frame.message, TelemetryFrame):
         return frame.message.timestamp_us
     return None
 
@@ -123,8 +141,8 @@ class EscDriver(Node):
         self._reject_reason = ""
         self._bridge_faults = ""
         self._flags_pending = 0
-        self._decoder_stats = protocol.DecoderStats()
-        self._window_start = (dict(self._counts), protocol.DecoderStats())
+        self._decoder_stats = DecoderStats()
+        self._window_start = (dict(self._counts), DecoderStats())
 
         self._reader = threading.Thread(target=self._read_loop, name="esc-serial", daemon=True)
         self._reader.start()
@@ -138,10 +156,8 @@ class EscDriver(Node):
     # ---- serial side (reader thread) -------------------------------------------------------
 
     def _read_loop(self) -> None:
-        decoder: protocol.FrameDecoder | protocol.KissDecoder = (
-            protocol.KissDecoder(self._pole_pairs)
-            if self._protocol == "kiss"
-            else protocol.FrameDecoder()
+        decoder: FrameDecoder | KissDecoder = (
+            KissDecoder(self._pole_pairs) if self._protocol == "kiss" else FrameDecoder()
         )
         while not self._stop.is_set():
             port = self._serial
@@ -160,7 +176,7 @@ class EscDriver(Node):
             frames = decoder.feed(data)
             self._decoder_stats = decoder.stats()
             for frame, frame_stamp in zip(
-                frames, link.frame_stamps(stamp, [_mcu_time_us(f) for f in frames]), strict=True
+                frames, frame_stamps(stamp, [_mcu_time_us(f) for f in frames]), strict=True
             ):
                 self._inbox.put(_Received(frame, frame_stamp))
             if frames:
@@ -197,14 +213,14 @@ class EscDriver(Node):
                 received = self._inbox.get_nowait()
             except queue.Empty:
                 return
-            if isinstance(received.frame, protocol.KissFrame):
+            if isinstance(received.frame, KissFrame):
                 self._handle_kiss(received.frame, received.stamp_ns)
-            elif isinstance(received.frame.message, protocol.TelemetryFrame):
+            elif isinstance(received.frame.message, TelemetryFrame):
                 self._handle_tfdd(received.frame.seq, received.frame.message, received.stamp_ns)
 
-    def _handle_tfdd(self, seq: int, frame: protocol.TelemetryFrame, stamp_ns: int) -> None:
+    def _handle_tfdd(self, seq: int, frame: TelemetryFrame, stamp_ns: int) -> None:
         if self._last_seq is not None:
-            check = protocol.classify_seq(self._last_seq, seq)
+            check = classify_seq(self._last_seq, seq)
             if check.status == "duplicate":
                 self._counts["duplicates"] += 1
                 return
@@ -213,25 +229,25 @@ class EscDriver(Node):
                 self._flags_pending |= EscTelemetry.SEQUENCE_GAP
         self._last_seq = seq
         # ESC_TIMEOUT is the bridge's watchdog at work, reported separately; the rest are faults.
-        faults = protocol.StatusFlag(frame.status) & ~protocol.StatusFlag.ESC_TIMEOUT
+        faults = StatusFlag(frame.status) & ~StatusFlag.ESC_TIMEOUT
         self._bridge_faults = faults.name or "" if faults else ""
-        sample = protocol.to_sample(frame)
-        command = link.pwm_to_command(frame.pwm_us)
+        sample = to_sample(frame)
+        command = pwm_to_command(frame.pwm_us)
         self._publish(seq, sample, command, frame.pwm_us, stamp_ns, 0)
 
-    def _handle_kiss(self, frame: protocol.KissFrame, stamp_ns: int) -> None:
+    def _handle_kiss(self, frame: KissFrame, stamp_ns: int) -> None:
         self._kiss_seq += 1
         # KISS carries no sign: the direction is the one the driver commands.
         sign = -1.0 if self._applied < 0 else 1.0
-        sample = protocol.to_sample(frame)
-        sample = protocol.TelemetrySample(
+        sample = to_sample(frame)
+        sample = TelemetrySample(
             voltage_v=sample.voltage_v,
             current_a=sample.current_a,
             rpm=sign * (sample.rpm or 0.0),
             temperature_c=sample.temperature_c,
             consumption_mah=sample.consumption_mah,
         )
-        pwm = link.command_to_pwm(self._applied)
+        pwm = command_to_pwm(self._applied)
         self._publish(
             self._kiss_seq, sample, self._applied, pwm, stamp_ns, EscTelemetry.NO_COMMAND_ECHO
         )
@@ -239,13 +255,13 @@ class EscDriver(Node):
     def _publish(
         self,
         seq: int,
-        sample: protocol.TelemetrySample,
+        sample: TelemetrySample,
         command: float,
         pwm_us: int,
         stamp_ns: int,
         flags: int,
     ) -> None:
-        problems = protocol.check_telemetry(sample)
+        problems = check_telemetry(sample)
         if problems:
             self._counts["rejected"] += 1
             self._reject_reason = problems[0]
@@ -279,7 +295,7 @@ class EscDriver(Node):
 
     def _on_command(self, msg: ThrusterCommand) -> None:
         try:
-            self._target = link.clamp_command(msg.command)
+            self._target = clamp_command(msg.command)
         except ValueError as exc:
             self.get_logger().warning(f"refused command: {exc}", throttle_duration_sec=1.0)
             return
@@ -294,12 +310,12 @@ class EscDriver(Node):
         target = 0.0 if self._watchdog else self._target
         dt = (now - self._last_send_ns) * 1e-9
         self._last_send_ns = now
-        self._applied = link.slew(self._applied, target, dt, self._max_rate)
+        self._applied = slew(self._applied, target, dt, self._max_rate)
         self._write_command(self._applied)
 
     def _write_command(self, command: float) -> None:
-        frame = protocol.CommandFrame(link.command_to_pwm(command), self._bridge_timeout_ms)
-        data = protocol.encode_command(frame, self._tx_seq)
+        frame = CommandFrame(command_to_pwm(command), self._bridge_timeout_ms)
+        data = encode_command(frame, self._tx_seq)
         self._tx_seq = (self._tx_seq + 1) % 65536
         with self._serial_lock:
             port = self._serial
@@ -315,7 +331,7 @@ class EscDriver(Node):
         stats = self._decoder_stats
         now = self.get_clock().now().nanoseconds
         since = None if self._last_frame_ns is None else (now - self._last_frame_ns) * 1e-9
-        window = link.LinkWindow(
+        window = LinkWindow(
             period_s=self._diag_period_s,
             expected_rate_hz=self._rate_hz,
             port_open=self._serial is not None,
@@ -334,7 +350,7 @@ class EscDriver(Node):
             reconnects=self._reconnects,
         )
         self._window_start = (dict(self._counts), stats)
-        health = link.assess_link(window)
+        health = assess_link(window)
         publish_status(
             self,
             self._diag_pub,

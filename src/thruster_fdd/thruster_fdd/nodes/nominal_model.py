@@ -21,9 +21,9 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import EscTelemetry, Residual
 
-from thruster_fdd.core.nominal import NominalModel
-from thruster_fdd.core.paths import default_models_dir
-from thruster_fdd.core.residuals import ResidualStream
+from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.nominal.residuals import ResidualStream
+from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,

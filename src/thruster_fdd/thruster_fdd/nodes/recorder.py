@@ -20,7 +20,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from thruster_fdd.core.recording import McapRecorder, RecordingPolicy
+from thruster_fdd.core.traces.recording import McapRecorder, RecordingPolicy
 from thruster_fdd.nodes.common import (
     declare_parameters,
     diagnostics_publisher,

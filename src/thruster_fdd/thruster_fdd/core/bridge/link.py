@@ -1,0 +1,215 @@
+"""ESC driver logic without ROS: command shaping, the command watchdog and serial-link health.
+
+The ``esc_driver`` node calls these and only translates between messages and these types.
+Health levels are the values of ``diagnostic_msgs/DiagnosticStatus`` (OK, WARN, ERROR, STALE).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from thruster_fdd.core.bridge.tfdd import NEUTRAL_PWM_US, PWM_PER_UNIT
+
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+"""Health levels, equal to ``diagnostic_msgs.msg.DiagnosticStatus`` OK/WARN/ERROR/STALE."""
+
+
+def clamp_command(value: float) -> float:
+    """Clamp a normalised command to -1..1.
+
+    Raises
+    ------
+    ValueError
+        If ``value`` is NaN or infinite: such a command is refused, not clamped.
+    """
+    if not math.isfinite(value):
+        raise ValueError(f"command {value} is not a finite number")
+    return min(1.0, max(-1.0, value))
+
+
+def slew(previous: float, target: float, dt_s: float, max_rate_per_s: float) -> float:
+    """Move from ``previous`` towards ``target`` by at most ``max_rate_per_s * dt_s``.
+
+    ``max_rate_per_s <= 0`` disables the limit (the target is returned).
+    """
+    if max_rate_per_s <= 0:
+        return target
+    step = max_rate_per_s * max(0.0, dt_s)
+    return previous + min(step, max(-step, target - previous))
+
+
+def command_to_pwm(command: float) -> int:
+    """Normalised command (-1..1) to the ESC pulse width in µs (1100..1900)."""
+    return round(NEUTRAL_PWM_US + PWM_PER_UNIT * clamp_command(command))
+
+
+def pwm_to_command(pwm_us: float) -> float:
+    """ESC pulse width in µs to the normalised command, ``(pwm_us - 1500) / 400``."""
+    return (pwm_us - NEUTRAL_PWM_US) / PWM_PER_UNIT
+
+
+def frame_stamps(
+    received_ns: int, mcu_us: list[int | None], period_ns: int = 1_000_000
+) -> list[int]:
+    """Host stamps for the frames decoded from one serial read, oldest first.
+
+    The last frame gets the read's host time; earlier ones are placed back by the bridge's own
+    clock (microseconds, u32 wrap) when every frame carries it, else ``period_ns`` apart, so
+    stamps stay strictly increasing.
+
+    Parameters
+    ----------
+    received_ns : int
+        Host time of the read, ns.
+    mcu_us : list of int or None
+        Bridge timestamp of each frame, µs, or None when the protocol has none.
+    period_ns : int
+        Spacing used without bridge timestamps, ns.
+
+    Returns
+    -------
+    list of int
+        One stamp per frame, ns, strictly increasing, the last equal to ``received_ns``.
+    """
+    n = len(mcu_us)
+    if n == 0:
+        return []
+    last = mcu_us[-1]
+    if last is not None and all(t is not None for t in mcu_us):
+        back_us = [((last - t) % (1 << 32)) for t in mcu_us]  # type: ignore[operator]
+        stamps = [received_ns - 1000 * b for b in back_us]
+    else:
+        stamps = [received_ns - period_ns * (n - 1 - i) for i in range(n)]
+    for i in range(n - 2, -1, -1):
+        stamps[i] = min(stamps[i], stamps[i + 1] - 1)
+    return stamps
+
+
+@dataclass(frozen=True)
+class LinkWindow:
+    """What the driver saw on its serial link during one diagnostics period.
+
+    Counts are increments over the period, except ``reconnects`` (since start).
+
+    Attributes
+    ----------
+    period_s : float
+        Length of the period, s.
+    expected_rate_hz : float
+        Telemetry rate the bridge is configured for, Hz.
+    port_open : bool
+        Whether the port is open at the end of the period.
+    port_error : str
+        Why the port is not open (empty when it is).
+    frames : int
+        Telemetry frames published.
+    crc_errors, truncated, garbage_bytes : int
+        Decoder counts: frames with a bad CRC, frames cut short, bytes skipped as noise.
+    lost, duplicates : int
+        Frames missing from the sequence, and frames received twice (dropped).
+    rejected : int
+        Frames refused as physically implausible (never published).
+    reject_reason : str
+        The last reason a frame was refused.
+    since_frame_s : float or None
+        Time since the last good frame, s; None when none arrived yet.
+    watchdog_neutral : bool
+        The command watchdog is holding neutral.
+    bridge_faults : str
+        Fault flags the bridge reported, empty when none.
+    reconnects : int
+        Times the port was re-opened after being lost.
+    """
+
+    period_s: float
+    expected_rate_hz: float
+    port_open: bool
+    port_error: str = ""
+    frames: int = 0
+    crc_errors: int = 0
+    truncated: int = 0
+    garbage_bytes: int = 0
+    lost: int = 0
+    duplicates: int = 0
+    rejected: int = 0
+    reject_reason: str = ""
+    since_frame_s: float | None = None
+    watchdog_neutral: bool = False
+    bridge_faults: str = ""
+    reconnects: int = 0
+
+
+@dataclass(frozen=True)
+class LinkHealth:
+    """The link's health: a level, one message naming every problem, and key values."""
+
+    level: int
+    message: str
+    values: tuple[tuple[str, str], ...]
+
+
+def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHealth:
+    """Summarise one diagnostics period of the serial link.
+
+    Parameters
+    ----------
+    window : LinkWindow
+        What was seen in the period.
+    stale_after_periods : float
+        Telemetry silent for this many frame periods makes the link STALE.
+
+    Returns
+    -------
+    LinkHealth
+        ERROR when the port is closed; STALE when no telemetry arrives; WARN for CRC errors,
+        truncated frames, noise, lost or duplicated frames, refused samples, bridge faults or
+        the watchdog holding neutral; OK otherwise.
+    """
+    rate = window.frames / window.period_s if window.period_s > 0 else 0.0
+    values = (
+        ("telemetry_rate_hz", f"{rate:.1f}"),
+        ("expected_rate_hz", f"{window.expected_rate_hz:.1f}"),
+        ("link", "open" if window.port_open else "closed"),
+        ("crc_errors", str(window.crc_errors)),
+        ("truncated_frames", str(window.truncated)),
+        ("garbage_bytes", str(window.garbage_bytes)),
+        ("lost_frames", str(window.lost)),
+        ("duplicate_frames", str(window.duplicates)),
+        ("rejected_samples", str(window.rejected)),
+        ("reconnects", str(window.reconnects)),
+        ("watchdog_neutral", str(window.watchdog_neutral).lower()),
+    )
+    if not window.port_open:
+        return LinkHealth(ERROR, f"serial port not open: {window.port_error}", values)
+    stale_s = stale_after_periods / window.expected_rate_hz
+    if window.since_frame_s is None or window.since_frame_s > stale_s:
+        silent = (
+            "no telemetry yet"
+            if window.since_frame_s is None
+            else (f"no telemetry for {window.since_frame_s:.1f} s")
+        )
+        return LinkHealth(STALE, f"{silent} (expected {window.expected_rate_hz:g} Hz)", values)
+    problems = [
+        text
+        for count, text in (
+            (window.crc_errors, f"{window.crc_errors} CRC errors"),
+            (window.truncated, f"{window.truncated} truncated frames"),
+            (window.garbage_bytes, f"{window.garbage_bytes} bytes of noise skipped"),
+            (window.lost, f"{window.lost} frames lost (sequence gap)"),
+            (window.duplicates, f"{window.duplicates} duplicated frames dropped"),
+            (
+                window.rejected,
+                f"{window.rejected} implausible samples refused ({window.reject_reason})",
+            ),
+        )
+        if count
+    ]
+    if window.bridge_faults:
+        problems.append(f"bridge reports {window.bridge_faults}")
+    if window.watchdog_neutral:
+        problems.append("no command within the watchdog timeout: holding neutral")
+    if problems:
+        summary = "; ".join(problems)
+        return LinkHealth(WARN, f"{summary} in the last {window.period_s:.1f} s", values)
+    return LinkHealth(OK, f"telemetry {rate:.1f} Hz", values)

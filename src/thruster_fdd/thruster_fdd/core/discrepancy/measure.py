@@ -1,0 +1,432 @@
+"""What a measured trace says, and where a model disagrees with it.
+
+``prepare_measured`` turns a measured trace into ``Measured`` (despiked, per-channel noise
+level, fit / held-out blocks); ``simulate_model`` and ``gap`` compare a configuration with it per
+channel; ``regions`` splits the squared residual over operating regions and ``signatures`` measures
+the cues that point to causes (lag, flat zone, clipping, offsets growing with current).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.ndimage import median_filter
+
+from thruster_fdd.core.sim.config import Measurement, SimConfig
+from thruster_fdd.core.sim.freerun import free_run
+from thruster_fdd.core.traces.data import Trace
+
+CHANNELS = ("rpm", "current", "voltage")
+"""Compared signals; the voltage channel is the model's bus voltage (supply minus sag)."""
+
+
+SUPPLY_WINDOW_S = 60.0
+"""Rolling-median window of the supply-voltage reconstruction, s."""
+
+
+N_BLOCKS = 10
+
+
+HELD_BLOCKS = (2, 5, 8)
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A measured trace prepared for fitting.
+
+    Attributes
+    ----------
+    t, command, voltage, rpm, current : np.ndarray, shape (n,)
+        Despiked measurement (s, -1..1, V, rpm, A).
+    fit, held : np.ndarray of bool, shape (n,)
+        Fit and held-out samples (interleaved blocks; disjoint, together all samples).
+    sigma : dict of str to float
+        Noise standard deviation per channel (rpm, A, V), estimated from second differences.
+    rpm_floor : float
+        Reporting floor of the speed, rpm (measured zeros are censored below it).
+    floor_zeroes_current : bool
+        Whether the current is reported as 0 under the floor too.
+    window : int
+        Supply reconstruction window in samples.
+    """
+
+    t: np.ndarray
+    command: np.ndarray
+    voltage: np.ndarray
+    rpm: np.ndarray
+    current: np.ndarray
+    fit: np.ndarray
+    held: np.ndarray
+    sigma: dict[str, float]
+    rpm_floor: float
+    floor_zeroes_current: bool
+    window: int
+
+    def channel(self, name: str) -> np.ndarray:
+        """Measured samples of channel ``name`` (one of ``CHANNELS``), shape (n,)."""
+        return getattr(self, name)
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Simulation-to-measurement gap on the held-out samples.
+
+    Attributes
+    ----------
+    rpm_rmse, current_rmse : float
+        Root mean squared error (rpm, A), with the model reported as the telemetry would be.
+    rpm_r2, current_r2 : float
+        Coefficient of determination.
+    voltage_rmse : float
+        Bus voltage RMSE, V (not part of report.json's gap).
+    score : float
+        Mean over channels of the mean squared residual in noise-variance units (1 is noise).
+    """
+
+    rpm_rmse: float
+    current_rmse: float
+    rpm_r2: float
+    current_r2: float
+    voltage_rmse: float
+    score: float
+
+    def public(self) -> dict[str, float]:
+        """The four keys of report.json's ``gap_before`` / ``gap_after``."""
+        return {
+            "rpm_rmse": self.rpm_rmse,
+            "current_rmse": self.current_rmse,
+            "rpm_r2": self.rpm_r2,
+            "current_r2": self.current_r2,
+        }
+
+
+def _noise_sigma(x: np.ndarray, floor: float) -> float:
+    """Noise std from the MAD of second differences (robust to steps), at least ``floor``.
+
+    Stretches that are exactly 0 (under a reporting floor) are left out; averaged, noise-free
+    data (second differences mostly exactly 0) gets the floor.
+    """
+    d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    d2 = d2[(x[2:] != 0.0) | (x[1:-1] != 0.0) | (x[:-2] != 0.0)]
+    if len(d2) < 10:
+        return floor
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    return max(1.4826 * mad / math.sqrt(6.0), floor)
+
+
+def _despike(x: np.ndarray, sigma: float, command: np.ndarray) -> np.ndarray:
+    """Replace isolated spikes (more than 8 sigma off the 5-sample median) by that median.
+
+    Not where the command (shape (n,)) bends (second difference over 0.02): a one-sample
+    response to a one-sample command, as in a bench log with one rest row at neutral between
+    two steps, is the thruster's, not a telemetry glitch. Ramps and holds are straight.
+    """
+    med = median_filter(x, size=5, mode="nearest")
+    padded = np.pad(command, 1, mode="edge")
+    bend = np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:]) > 0.02
+    spikes = ~bend & (np.abs(x - med) > 8.0 * sigma)
+    return np.where(spikes, med, x)
+
+
+def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
+    """Despike, estimate noise and split a measured trace.
+
+    Parameters
+    ----------
+    trace : Trace
+        Measured trace with at least 100 samples spanning at least 20 s.
+    config : SimConfig
+        Starting configuration (its measurement model gives the reporting floor).
+
+    Raises
+    ------
+    ValueError
+        If the trace is too short, holds non-finite values or never moves the thruster.
+    """
+    n = len(trace.t)
+    if n < 100 or trace.t[-1] - trace.t[0] < 20.0:
+        raise ValueError(f"measured trace too short: {n} samples, need >= 100 over >= 20 s")
+    cols = {c: np.asarray(getattr(trace, c), dtype=float) for c in ("t", "command", *CHANNELS)}
+    for name, arr in cols.items():
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"measured trace column {name!r} holds non-finite values")
+    if np.max(np.abs(cols["rpm"])) <= 0.0:
+        raise ValueError("measured trace never turns the thruster (rpm is 0 throughout)")
+    if np.min(cols["voltage"]) <= 0.0:
+        raise ValueError("measured trace voltage must be > 0 V")
+    floors = {
+        "rpm": 2e-3 * float(np.max(np.abs(cols["rpm"]))),
+        "current": max(2e-3 * float(np.max(np.abs(cols["current"]))), 1e-3),
+        "voltage": 1e-3 * float(np.median(cols["voltage"])),
+    }
+    sigma = {c: _noise_sigma(cols[c], floors[c]) for c in CHANNELS}
+    clean = {c: _despike(cols[c], sigma[c], cols["command"]) for c in CHANNELS}
+    block = np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
+    held = np.isin(block, HELD_BLOCKS)
+    dt = float(np.median(np.diff(cols["t"])))
+    return Measured(
+        t=cols["t"] - cols["t"][0],
+        command=np.clip(cols["command"], -1.0, 1.0),
+        voltage=clean["voltage"],
+        rpm=clean["rpm"],
+        current=clean["current"],
+        fit=~held,
+        held=held,
+        sigma=sigma,
+        rpm_floor=config.measurement.rpm_floor,
+        floor_zeroes_current=config.measurement.floor_zeroes_current,
+        window=max(3, round(SUPPLY_WINDOW_S / dt) | 1),
+    )
+
+
+def supply_voltage(data: Measured, r_internal_ohm: float) -> np.ndarray:
+    """Supply voltage reconstructed from the measured bus voltage, V, shape (n,).
+
+    ``V_supply = rolling median over SUPPLY_WINDOW_S of (V_bus + r_internal_ohm * I)``, rounded
+    to 10 mV: slow supply changes (battery, bench set-points) are followed, the fast drop with
+    current is left to the model's ``voltage_sag``.
+    """
+    raw = data.voltage + r_internal_ohm * data.current
+    return np.round(median_filter(raw, size=data.window, mode="nearest"), 2)
+
+
+def noise_free(config: SimConfig) -> SimConfig:
+    """The nominal unit without measurement noise, outliers, quantisation or reporting floor."""
+    return replace(config, spread=0.0, measurement=Measurement())
+
+
+def simulate_model(config: SimConfig, data: Measured) -> dict[str, np.ndarray]:
+    """Free-run, noise-free simulation driven by the measured command and supply voltage.
+
+    The compiled ``core.freerun.free_run``: equal (to rounding, tested) to the reference
+    ``ThrusterSimulator`` of ``noise_free(config)`` stepped through the measured command, with
+    the supply of ``supply_voltage`` set before each step.
+
+    Returns
+    -------
+    dict of str to np.ndarray, each shape (n,)
+        ``rpm`` (raw, no reporting floor), ``current`` (A) and ``voltage`` (bus, V).
+    """
+    sag = config.effect("voltage_sag")
+    supply = supply_voltage(data, sag.params()["r_internal_ohm"] if sag else 0.0)
+    return free_run(noise_free(config), data.t, data.command, supply)
+
+
+def reported(sim: dict[str, np.ndarray], data: Measured) -> dict[str, np.ndarray]:
+    """Apply the reporting floor to a simulation, as the telemetry would show it."""
+    below = np.abs(sim["rpm"]) < data.rpm_floor
+    out = dict(sim)
+    out["rpm"] = np.where(below, 0.0, sim["rpm"])
+    if data.floor_zeroes_current:
+        out["current"] = np.where(below, 0.0, sim["current"])
+    return out
+
+
+def weighted_residuals(sim: dict[str, np.ndarray], data: Measured) -> dict[str, np.ndarray]:
+    """Measured minus simulated, per channel, shape (n,), with the floor treated as censoring.
+
+    Where the measured speed is 0 under a reporting floor, the speed residual is the model's
+    excess over the floor (0 if the model is under it too) and, if the floor also zeroes the
+    current, the current residual is 0. Continuous in the parameters, unlike a hard floor.
+    """
+    res = {c: data.channel(c) - sim[c] for c in CHANNELS}
+    if data.rpm_floor > 0.0:
+        censored = data.rpm == 0.0
+        excess = np.maximum(np.abs(sim["rpm"]) - data.rpm_floor, 0.0) * np.sign(sim["rpm"])
+        res["rpm"] = np.where(censored, -excess, res["rpm"])
+        if data.floor_zeroes_current:
+            res["current"] = np.where(censored, 0.0, res["current"])
+    return res
+
+
+def _r2(y: np.ndarray, e: np.ndarray) -> float:
+    ss = float(np.sum((y - y.mean()) ** 2))
+    return 1.0 - float(np.sum(e**2)) / ss if ss > 0.0 else math.nan
+
+
+def gap(sim: dict[str, np.ndarray], data: Measured, mask: np.ndarray | None = None) -> Gap:
+    """Gap between a simulation and the measurement on ``mask`` (default: held-out samples)."""
+    mask = data.held if mask is None else mask
+    rep = reported(sim, data)
+    err = {c: (data.channel(c) - rep[c])[mask] for c in CHANNELS}
+    res = weighted_residuals(sim, data)
+    score = float(np.mean([np.mean(res[c][mask] ** 2) / data.sigma[c] ** 2 for c in CHANNELS]))
+    return Gap(
+        rpm_rmse=float(np.sqrt(np.mean(err["rpm"] ** 2))),
+        current_rmse=float(np.sqrt(np.mean(err["current"] ** 2))),
+        rpm_r2=_r2(data.rpm[mask], err["rpm"]),
+        current_r2=_r2(data.current[mask], err["current"]),
+        voltage_rmse=float(np.sqrt(np.mean(err["voltage"] ** 2))),
+        score=score,
+    )
+
+
+TRANSIENT_S = 3.0
+"""Samples within this time after a command change count as transient, s."""
+
+
+@dataclass(frozen=True)
+class Region:
+    """Share of one signal's squared residual that lies in one operating region.
+
+    Attributes
+    ----------
+    signal : str
+        ``rpm`` or ``current``.
+    region : str
+        Region description.
+    error_share : float
+        Fraction of the signal's squared residual inside the region.
+    sample_share : float
+        Fraction of the samples inside the region.
+    rmse : float
+        RMSE inside the region (rpm or A).
+    """
+
+    signal: str
+    region: str
+    error_share: float
+    sample_share: float
+    rmse: float
+
+
+def region_masks(data: Measured) -> dict[str, np.ndarray]:
+    """Boolean masks, shape (n,), of the operating regions used by ``regions``."""
+    mag = np.abs(data.command)
+    change = np.flatnonzero(np.abs(np.diff(data.command)) > 0.02) + 1
+    last = np.full(len(data.t), -np.inf)
+    last[0] = data.t[0]
+    last[change] = data.t[change]
+    since = data.t - np.maximum.accumulate(last)
+    high_i = np.quantile(data.current, 0.9)
+    return {
+        "|command| < 0.1 (near zero)": mag < 0.1,
+        "0.1 <= |command| < 0.4": (mag >= 0.1) & (mag < 0.4),
+        "0.4 <= |command| < 0.7": (mag >= 0.4) & (mag < 0.7),
+        "|command| >= 0.7": mag >= 0.7,
+        "reverse (command < 0)": data.command < 0.0,
+        f"transient (< {TRANSIENT_S:g} s after a command change)": since < TRANSIENT_S,
+        f"steady (>= {TRANSIENT_S:g} s after a command change)": since >= TRANSIENT_S,
+        f"high current (top 10 %, >= {high_i:.2f} A)": data.current >= high_i,
+    }
+
+
+def regions(sim: dict[str, np.ndarray], data: Measured, mask: np.ndarray) -> list[Region]:
+    """Split the squared residuals of rpm and current over ``region_masks`` within ``mask``.
+
+    Returns
+    -------
+    list of Region
+        For each signal, every region, sorted by error share (largest first).
+    """
+    res = weighted_residuals(sim, data)
+    out = []
+    for signal in ("rpm", "current"):
+        sq = res[signal] ** 2
+        total = float(sq[mask].sum()) or 1.0
+        rows = []
+        for name, region in region_masks(data).items():
+            sel = region & mask
+            if not sel.any():
+                continue
+            rows.append(
+                Region(
+                    signal=signal,
+                    region=name,
+                    error_share=float(sq[sel].sum()) / total,
+                    sample_share=float(sel.sum()) / float(mask.sum()),
+                    rmse=float(np.sqrt(sq[sel].mean())),
+                )
+            )
+        out += sorted(rows, key=lambda r: -r.error_share)
+    return out
+
+
+def _lag_s(data: Measured, sim: dict[str, np.ndarray], max_lag_s: float = 3.0) -> float:
+    """Delay of the measured speed behind the model's, s (cross-correlation of increments)."""
+    a = np.diff(data.rpm)
+    b = np.diff(reported(sim, data)["rpm"])
+    dt = float(np.median(np.diff(data.t)))
+    lags = range(-int(max_lag_s / dt), int(max_lag_s / dt) + 1)
+    scores = []
+    for k in lags:
+        x, y = (a[k:], b[: len(b) - k]) if k >= 0 else (a[:k], b[-k:])
+        scores.append(float(np.dot(x, y)))
+    return float(list(lags)[int(np.argmax(scores))] * dt)
+
+
+def _slope(x: np.ndarray, y: np.ndarray) -> float:
+    if np.ptp(x) <= 0.0:
+        return 0.0
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def signatures(sim: dict[str, np.ndarray], data: Measured) -> dict[str, float]:
+    """Cues of the residual of one simulation against the measurement (all samples).
+
+    Returns
+    -------
+    dict of str to float
+        ``lag_s`` (measured speed behind the model, s), ``zero_band_measured`` and
+        ``zero_band_model`` (largest steady |command| with speed reported 0),
+        ``current_max_measured`` and ``current_max_model`` (A, 99.5 % quantile; a lower
+        measured maximum means clipping),
+        ``current_residual_per_a`` (slope of current residual against measured current, A/A),
+        ``voltage_residual_per_a`` (slope of bus-voltage residual against current, V/A; negative
+        means an unmodelled voltage sag), ``steady_share_rpm`` (share of the rpm squared
+        residual in steady state).
+    """
+    rep = reported(sim, data)
+    masks = region_masks(data)
+    steady = next(m for k, m in masks.items() if k.startswith("steady"))
+    mag = np.abs(data.command)
+
+    def band(rpm: np.ndarray) -> float:
+        zero = steady & (rpm == 0.0)
+        return float(mag[zero].max()) if zero.any() else 0.0
+
+    res = weighted_residuals(sim, data)
+    sq = res["rpm"] ** 2
+    return {
+        "lag_s": _lag_s(data, sim),
+        "zero_band_measured": band(data.rpm),
+        "zero_band_model": band(rep["rpm"]),
+        "current_max_measured": float(np.quantile(data.current, 0.995)),
+        "current_max_model": float(np.quantile(rep["current"], 0.995)),
+        "current_residual_per_a": _slope(data.current, res["current"]),
+        "voltage_residual_per_a": _slope(data.current, res["voltage"]),
+        "steady_share_rpm": float(sq[steady].sum() / max(sq.sum(), 1e-300)),
+    }
+
+
+def describe(sig: dict[str, float]) -> list[str]:
+    """Plain-language reading of ``signatures`` (one line per notable cue)."""
+    lines = []
+    if abs(sig["lag_s"]) >= 0.1:
+        lines.append(
+            f"the measured speed lags the model by {sig['lag_s']:.2f} s "
+            "(cross-correlation of speed increments): a delay or lag is missing"
+        )
+    if sig["zero_band_measured"] - sig["zero_band_model"] >= 0.01:
+        lines.append(
+            f"flat zone: speed stays 0 up to |command| {sig['zero_band_measured']:.3f} measured, "
+            f"{sig['zero_band_model']:.3f} in the model (deadband or static friction)"
+        )
+    if sig["current_max_model"] > 1.03 * sig["current_max_measured"]:
+        lines.append(
+            f"clipping: measured current tops out at {sig['current_max_measured']:.2f} A, "
+            f"the model reaches {sig['current_max_model']:.2f} A (current limit)"
+        )
+    if abs(sig["current_residual_per_a"]) >= 0.02:
+        lines.append(
+            f"current offset grows with current: {sig['current_residual_per_a']:+.3f} A "
+            "per A of measured current"
+        )
+    if sig["voltage_residual_per_a"] <= -0.005:
+        lines.append(
+            f"bus voltage falls {-sig['voltage_residual_per_a']:.3f} V per A more than "
+            "the model's (supply resistance, voltage sag)"
+        )
+    return lines or ["no notable cue: the residual is close to noise"]

@@ -1,0 +1,21 @@
+"""The canonical condition names every part of the package spells the same way.
+
+The six classes are the ``condition`` column of a trace CSV, the classes of a model card and the
+``label`` of a ``Diagnosis`` message (docs/contracts.md, "Canonical names").
+"""
+
+from __future__ import annotations
+
+CLASS_NAMES: tuple[str, ...] = (
+    "nominal_15v",
+    "nominal_13v",
+    "nominal_11v8",
+    "broken_blade_1",
+    "broken_blade_2",
+    "biofouling",
+)
+"""The six conditions, spelled as in DESIGN.md (CSV ``condition`` column, model cards, labels)."""
+
+
+UNKNOWN = "unknown"
+"""Label of a window unlike every class (or not confident enough)."""

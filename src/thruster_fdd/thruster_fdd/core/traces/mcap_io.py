@@ -1,0 +1,235 @@
+"""Traces as MCAP recordings, and ROS message definitions as rosbag2 writes them. No rclpy.
+
+MCAP files use schema encoding ``ros2msg`` and message encoding ``cdr``; a schema's data is the
+message definition followed by the definitions it depends on, each after a line of 80 ``=``
+and a ``MSG: pkg/Type`` line (rosbag2's layout), so the files open in rosbag2's MCAP plugin,
+Foxglove and the ``mcap`` / ``mcap-ros2-support`` readers. Definitions are read from the
+``share/<pkg>/msg/*.msg`` files of the installed packages (``AMENT_PREFIX_PATH``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.writer import Writer
+
+from thruster_fdd.core.traces.data import Trace
+
+TELEMETRY_TYPE = "thruster_fdd_msgs/msg/EscTelemetry"
+
+
+METADATA_NAME = "thruster_fdd"
+
+
+_SEPARATOR = "=" * 80
+
+
+_PRIMITIVES = frozenset(
+    [
+        "bool",
+        "byte",
+        "char",
+        "float32",
+        "float64",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+        "string",
+        "wstring",
+    ]
+)
+
+
+_TELEMETRY_TOPIC = re.compile(r"^/thruster/(?P<id>[^/]+)/esc/telemetry$")
+
+
+def telemetry_topic(thruster_id: str) -> str:
+    """Topic of a thruster's telemetry, ``/thruster/<id>/esc/telemetry``."""
+    return f"/thruster/{thruster_id}/esc/telemetry"
+
+
+def _share_dirs() -> list[Path]:
+    prefixes = os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)
+    return [Path(p) / "share" for p in prefixes if p]
+
+
+def _msg_file(type_name: str) -> Path:
+    pkg, _, name = type_name.replace("/msg/", "/").partition("/")
+    for share in _share_dirs():
+        candidate = share / pkg / "msg" / f"{name}.msg"
+        if candidate.is_file():
+            return candidate
+    raise ValueError(
+        f"no definition of {type_name} under AMENT_PREFIX_PATH (is the workspace sourced?)"
+    )
+
+
+def _dependencies(pkg: str, text: str) -> list[str]:
+    deps: list[str] = []
+    for raw in text.splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        # The first token is the type (constants are always primitive); drop array/bounds.
+        field_type = re.sub(r"(\[.*\]|<=\d+)", "", line.split()[0])
+        if field_type in _PRIMITIVES:
+            continue
+        if field_type == "Header":
+            field_type = "std_msgs/Header"
+        deps.append(field_type if "/" in field_type else f"{pkg}/{field_type}")
+    return deps
+
+
+def message_definition(type_name: str) -> str:
+    """The full definition of a message type as rosbag2 stores it in MCAP schemas.
+
+    Parameters
+    ----------
+    type_name : str
+        ``pkg/msg/Type`` or ``pkg/Type``.
+
+    Raises
+    ------
+    ValueError
+        If a definition is not found under ``AMENT_PREFIX_PATH``.
+    """
+    pkg = type_name.split("/", 1)[0]
+    main = _msg_file(type_name).read_text()
+    parts = [main.rstrip("\n")]
+    seen: set[str] = set()
+    queue = _dependencies(pkg, main)
+    while queue:
+        dep = queue.pop(0)
+        if dep in seen:
+            continue
+        seen.add(dep)
+        text = _msg_file(dep).read_text()
+        parts.append(f"{_SEPARATOR}\nMSG: {dep}\n{text.rstrip(chr(10))}")
+        queue.extend(_dependencies(dep.split("/", 1)[0], text))
+    return "\n".join(parts) + "\n"
+
+
+def _label_segments(trace: Trace) -> str:
+    labels = trace.sample_labels()
+    if labels is None:
+        return ""
+    starts = [0] + [i for i in range(1, len(labels)) if labels[i] != labels[i - 1]]
+    return ";".join(f"{trace.t[i]:.6f}:{labels[i]}" for i in starts)
+
+
+def write_trace_mcap(traces: Iterable[Trace], path: str | Path) -> None:
+    """Write traces as ``EscTelemetry`` messages on each thruster's telemetry topic.
+
+    Labels go into a metadata record named ``thruster_fdd`` (``labels.<id>`` =
+    ``t_start:class;...``); a trace without ``thruster_id`` is written as ``t0``.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("wb") as f:
+        writer = Writer(f)
+        schema = writer.register_msgdef(TELEMETRY_TYPE, message_definition(TELEMETRY_TYPE))
+        metadata: dict[str, str] = {}
+        for trace in traces:
+            tid = trace.thruster_id or "t0"
+            metadata[f"labels.{tid}"] = _label_segments(trace)
+            topic = telemetry_topic(tid)
+            pwm = np.rint(1500 + 400 * trace.command).astype(int)
+            temperature = trace.extra.get("temperature", np.zeros(len(trace)))
+            for i in range(len(trace)):
+                stamp_ns = round(float(trace.t[i]) * 1e9)
+                sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+                message = {
+                    "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": tid},
+                    "thruster_id": tid,
+                    "sequence": i,
+                    "command": float(trace.command[i]),
+                    "pwm_us": int(pwm[i]),
+                    "voltage_v": float(trace.voltage[i]),
+                    "current_a": float(trace.current[i]),
+                    "rpm": float(trace.rpm[i]),
+                    "temperature_c": float(temperature[i]),
+                    "status": 0,
+                }
+                writer.write_message(topic, schema, message, stamp_ns, stamp_ns, i)
+        writer._writer.add_metadata(METADATA_NAME, metadata)  # mcap_ros2 exposes no wrapper
+        writer.finish()
+
+
+def read_trace_mcap(path: str | Path) -> list[Trace]:
+    """Read every thruster's telemetry from an MCAP file as traces (one per thruster id).
+
+    Labels come from the ``thruster_fdd`` metadata record when present.
+
+    Raises
+    ------
+    ValueError
+        If the file holds no ``EscTelemetry`` topic.
+    """
+    path = Path(path)
+    columns: dict[str, dict[str, list[float]]] = {}
+    segments: dict[str, str] = {}
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for record in reader.iter_metadata():
+            if record.name == METADATA_NAME:
+                segments.update({k.removeprefix("labels."): v for k, v in record.metadata.items()})
+        for schema, channel, _, msg in reader.iter_decoded_messages():
+            match = _TELEMETRY_TOPIC.match(channel.topic)
+            if schema is None or schema.name != TELEMETRY_TYPE or match is None:
+                continue
+            cols = columns.setdefault(
+                match["id"], {k: [] for k in ("t", "command", "voltage", "rpm", "current", "T")}
+            )
+            cols["t"].append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+            cols["command"].append(msg.command)
+            cols["voltage"].append(msg.voltage_v)
+            cols["rpm"].append(msg.rpm)
+            cols["current"].append(msg.current_a)
+            cols["T"].append(msg.temperature_c)
+    if not columns:
+        raise ValueError(f"{path}: no {TELEMETRY_TYPE} messages on /thruster/<id>/esc/telemetry")
+    traces = []
+    for tid, cols in sorted(columns.items()):
+        arrays = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
+        order = np.argsort(arrays["t"], kind="stable")
+        arrays = {k: v[order] for k, v in arrays.items()}
+        # A live log can hold a sample twice (a re-sent frame): keep the first of each stamp.
+        first = np.concatenate(([True], np.diff(arrays["t"]) > 0))
+        arrays = {k: v[first] for k, v in arrays.items()}
+        labels = _labels_from_segments(arrays["t"], segments.get(tid, ""))
+        uniform = labels is not None and bool((labels == labels[0]).all())
+        traces.append(
+            Trace(
+                t=arrays["t"],
+                command=arrays["command"],
+                voltage=arrays["voltage"],
+                rpm=arrays["rpm"],
+                current=arrays["current"],
+                condition=str(labels[0]) if uniform else None,
+                thruster_id=tid,
+                extra={"temperature": arrays["T"]},
+                labels=None if uniform else labels,
+            )
+        )
+    return traces
+
+
+def _labels_from_segments(t: np.ndarray, text: str) -> np.ndarray | None:
+    if not text:
+        return None
+    segments = [part.partition(":")[::2] for part in text.split(";")]
+    labels = np.full(len(t), segments[0][1], dtype=object)
+    for start, name in segments[1:]:
+        labels[t >= float(start) - 1e-9] = name
+    return labels

@@ -1,0 +1,224 @@
+"""Replay of recordings, without ROS: what to publish, and how to judge what came back.
+
+A recording's telemetry is replayed at the nominal model's sample time (the same decimation as
+``core.residuals``), so every published sample produces exactly one residual and the replayer
+can wait for it: no sample is dropped however fast the replay, and the same bag always gives
+the same diagnoses. Expectations are the diagnoses recorded in the bag (a live run), or the
+ground-truth labels a simulated recording carries in its metadata.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from thruster_fdd.core.nominal.residuals import decimate
+from thruster_fdd.core.traces.mcap_io import METADATA_NAME
+
+_TELEMETRY = "/esc/telemetry"
+
+
+_RESIDUAL = "/fdd/residual"
+
+
+_DIAGNOSIS = "/fdd/diagnosis"
+
+
+@dataclass(frozen=True)
+class ThrusterBag:
+    """One thruster's part of a recording.
+
+    Attributes
+    ----------
+    thruster_id : str
+        The id in its topic names.
+    stamps_ns : tuple of int
+        Header stamps of the telemetry samples to replay, ns, increasing.
+    raw : tuple of bytes
+        Their CDR bytes, as recorded.
+    recorded : tuple of (float, str)
+        Diagnoses recorded live: (header stamp s, label).
+    truth : tuple of (float, str)
+        Ground-truth label segments (start s, class) from simulation metadata; empty if none.
+    """
+
+    thruster_id: str
+    stamps_ns: tuple[int, ...]
+    raw: tuple[bytes, ...]
+    recorded: tuple[tuple[float, str], ...]
+    truth: tuple[tuple[float, str], ...]
+
+    def truth_at(self, t_s: float) -> str | None:
+        """The ground-truth class at time ``t_s``, or None when the bag has none."""
+        label = None
+        for start, name in self.truth:
+            if t_s >= start - 1e-9:
+                label = name
+        return label
+
+
+def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
+    """Read the telemetry to replay and the diagnoses of every thruster.
+
+    The samples replayed are those the live nominal model used — the stamps of the recorded
+    residuals — when the recording has residuals, so a live run is reproduced sample for
+    sample; otherwise the telemetry decimated to ``period_s``.
+
+    Raises
+    ------
+    ValueError
+        If the file holds no ``/thruster/<id>/esc/telemetry`` topic.
+    """
+    path = Path(path)
+    telemetry: dict[str, list[tuple[int, bytes]]] = {}
+    recorded: dict[str, list[tuple[float, str]]] = {}
+    used: dict[str, set[int]] = {}
+    truth: dict[str, str] = {}
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for record in reader.iter_metadata():
+            if record.name == METADATA_NAME:
+                truth.update(
+                    {
+                        k.removeprefix("labels."): v
+                        for k, v in record.metadata.items()
+                        if k.startswith("labels.")
+                    }
+                )
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            topic = channel.topic
+            if not topic.startswith("/thruster/"):
+                continue
+            tid = topic.split("/")[2]
+            stamp = decoded.header.stamp
+            ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+            if topic.endswith(_TELEMETRY):
+                telemetry.setdefault(tid, []).append((ns, message.data))
+            elif topic.endswith(_RESIDUAL):
+                used.setdefault(tid, set()).add(ns)
+            elif topic.endswith(_DIAGNOSIS):
+                # The same float as the replayer's stamp_ns * 1e-9, so equal stamps compare equal.
+                recorded.setdefault(tid, []).append((ns * 1e-9, decoded.label))
+    if not telemetry:
+        raise ValueError(f"{path}: no /thruster/<id>/esc/telemetry messages to replay")
+    bags = []
+    for tid, samples in sorted(telemetry.items()):
+        samples.sort(key=lambda s: s[0])
+        unique = [s for i, s in enumerate(samples) if i == 0 or s[0] > samples[i - 1][0]]
+        if tid in used:
+            keep = np.array([s[0] in used[tid] for s in unique])
+        else:
+            keep = decimate(np.array([s[0] for s in unique], dtype=float) * 1e-9, period_s)
+        segments = tuple(
+            (float(start), name)
+            for start, _, name in (
+                part.partition(":") for part in truth.get(tid, "").split(";") if part
+            )
+        )
+        bags.append(
+            ThrusterBag(
+                thruster_id=tid,
+                stamps_ns=tuple(s[0] for s, k in zip(unique, keep, strict=True) if k),
+                raw=tuple(s[1] for s, k in zip(unique, keep, strict=True) if k),
+                recorded=tuple(recorded.get(tid, [])),
+                truth=segments,
+            )
+        )
+    return tuple(bags)
+
+
+def collapse(labels: list[str]) -> list[str]:
+    """The sequence of distinct consecutive labels (``a a b b a`` -> ``a b a``)."""
+    return [label for i, label in enumerate(labels) if i == 0 or label != labels[i - 1]]
+
+
+@dataclass(frozen=True)
+class ReplayCheck:
+    """How a replay's diagnoses compare with the expectations of one thruster.
+
+    Attributes
+    ----------
+    thruster_id : str
+    decisions : int
+        Diagnoses published during the replay.
+    sequence : list of str
+        The replay's collapsed label sequence (``unknown`` dropped).
+    expected_sequence : list of str or None
+        The recorded (or ground-truth) collapsed sequence; None when the bag has neither.
+    source : str
+        ``recorded``, ``truth`` or ``none``.
+    agreement : float or None
+        Fraction of replayed decisions equal to the expectation at their time: the recorded
+        decision nearest in time, within half the recorded decision spacing (same stamps when
+        the recording holds the live run from its first residual); ground truth: decisions
+        within ``settle_s`` after a label change are not counted.
+    passed : bool
+        Sequences equal and agreement at least the threshold (True when nothing is expected).
+    """
+
+    thruster_id: str
+    decisions: int
+    sequence: list[str]
+    expected_sequence: list[str] | None
+    source: str
+    agreement: float | None
+    passed: bool
+
+
+def _nearest_pairs(
+    expected: list[tuple[float, str]], got: list[tuple[float, str]]
+) -> list[tuple[str, str]]:
+    """(recorded, replayed) labels of replayed decisions with a recorded one within half the
+    median recorded spacing."""
+    times = np.array(sorted(t for t, _ in expected))
+    if times.size == 0:
+        return []
+    labels = [label for _, label in sorted(expected)]
+    tol = 0.5 * float(np.median(np.diff(times))) if times.size > 1 else 0.5
+    pairs = []
+    for t, label in got:
+        i = int(np.searchsorted(times, t))
+        near = [j for j in (i - 1, i) if 0 <= j < times.size]
+        j = min(near, key=lambda k: abs(times[k] - t))
+        if abs(times[j] - t) <= tol:
+            pairs.append((labels[j], label))
+    return pairs
+
+
+def check_replay(
+    bag: ThrusterBag,
+    got: list[tuple[float, str]],
+    *,
+    min_agreement: float = 0.9,
+    settle_s: float = 15.0,
+) -> ReplayCheck:
+    """Compare replayed diagnoses ``got`` (stamp s, label) with what ``bag`` expects."""
+    labels = [label for _, label in got if label != "unknown"]
+    sequence = collapse(labels)
+    if bag.recorded:
+        expected = [(t, label) for t, label in bag.recorded]
+        exp_labels = collapse([label for _, label in expected if label != "unknown"])
+        pairs = _nearest_pairs(expected, got)
+        agreement = sum(1 for a, b in pairs if a == b) / len(pairs) if pairs else 0.0
+        passed = sequence == exp_labels and agreement >= min_agreement
+        return ReplayCheck(
+            bag.thruster_id, len(got), sequence, exp_labels, "recorded", agreement, passed
+        )
+    if bag.truth:
+        changes = [start for start, _ in bag.truth[1:]]
+        counted = [
+            (bag.truth_at(t), label)
+            for t, label in got
+            if not any(0.0 <= t - c < settle_s for c in changes) and label != "unknown"
+        ]
+        agreement = sum(1 for a, b in counted if a == b) / len(counted) if counted else 0.0
+        exp_labels = collapse([name for _, name in bag.truth])
+        passed = sequence == exp_labels and agreement >= min_agreement
+        return ReplayCheck(
+            bag.thruster_id, len(got), sequence, exp_labels, "truth", agreement, passed
+        )
+    return ReplayCheck(bag.thruster_id, len(got), sequence, None, "none", None, True)
