@@ -1,6 +1,6 @@
 """Benchmark: wall time of one full discrepancy run on a 10-minute trace at 10 Hz.
 
-The measured trace hides ``dead_time`` from the t100 model (``core.discrepancy_cases``); the
+The measured trace hides ``dead_time`` from the t100 model (``core.discrepancy.cases``); the
 run is the whole workflow of ``thruster-fdd discrepancy`` (calibration, candidate rounds,
 report files). Target: < 120 s on the 2-core machine.
 

@@ -2,7 +2,7 @@
 
 For every effect of the vocabulary (and effect pairs, and null traces with nothing hidden) and
 every seed, simulates a noisy "measured" t100 trace with the effect hidden from the model
-(``core.discrepancy_cases``), runs the workflow, and prints a Markdown table: detection rate,
+(``core.discrepancy.cases``), runs the workflow, and prints a Markdown table: detection rate,
 median / worst parameter error, gap shrink (held-out score), false-positive rate.
 
 Each case uses the command signal that excites its effect (``discrepancy_cases.EXCITING``:

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate the committed default classifier (models/classifier/) from simulated t100 traces:
-# the six classes x 8 units (seeds 100-107, TRAIN_UNIT_SEEDS in core/classifier_eval.py) x the
+# the six classes x 8 units (seeds 100-107, TRAIN_UNIT_SEEDS in core/diagnosis/evaluation.py) x the
 # profiles sine:0.01, steps, multilevel, chirp (300 s each) and mission (600 s), plus the six
 # classes x 8 more units (108-115, MISSION_UNIT_SEEDS) x mission (1200 s), at 10 Hz, with
 # residuals of models/nominal; trained with seed 0 (20 s windows).

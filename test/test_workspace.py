@@ -79,11 +79,23 @@ def test_core_check_catches_a_ros_import(tmp_path: Path) -> None:
 def test_core_imports_without_rclpy_loaded() -> None:
     code = (
         "import sys, importlib, pkgutil, thruster_fdd.core as c\n"
-        "for m in pkgutil.iter_modules(c.__path__):\n"
-        "    importlib.import_module('thruster_fdd.core.' + m.name)\n"
+        "for m in pkgutil.walk_packages(c.__path__, 'thruster_fdd.core.'):\n"
+        "    importlib.import_module(m.name)\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
         "('rclpy', 'thruster_fdd_msgs', 'std_msgs', 'diagnostic_msgs'))\n"
         "print(bad)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_nodes_import_neither_torch_nor_training_code() -> None:
+    code = (
+        "import sys, importlib, pkgutil, thruster_fdd.nodes as n\n"
+        "for m in pkgutil.walk_packages(n.__path__, 'thruster_fdd.nodes.'):\n"
+        "    importlib.import_module(m.name)\n"
+        "heavy = ('torch', 'tqdm', 'scipy.optimize', 'matplotlib', 'sysidentpy')\n"
+        "print(sorted(m for m in heavy if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip().splitlines()[-1] == "[]"

@@ -159,12 +159,15 @@ def test_load_errors_name_the_file_and_the_problem(models: Path, tmp_path: Path)
     with pytest.raises(ValueError, match=r"missing field.*temperature"):
         ClassifierModel.load(d)
     card_path.write_text(json.dumps(card))
-    (d / "model.pt2").write_bytes(b"garbage")
-    with pytest.raises(ValueError, match=r"model\.pt2: not a loadable"):
-        ClassifierModel.load(d)
-    (d / "model.pt2").unlink()
-    with pytest.raises(ValueError, match=r"model\.pt2: exported program missing"):
-        ClassifierModel.load(d)
+    for name in ("model.pt2", "weights.npz"):
+        saved = (d / name).read_bytes()
+        (d / name).write_bytes(saved[:-1] + bytes([saved[-1] ^ 1]))
+        with pytest.raises(ValueError, match=rf"{name}: SHA-256 differs"):
+            ClassifierModel.load(d)
+        (d / name).unlink()
+        with pytest.raises(ValueError, match=rf"{name}: missing"):
+            ClassifierModel.load(d)
+        (d / name).write_bytes(saved)
     card_path.unlink()
     with pytest.raises(ValueError, match=r"model_card\.json: model card missing"):
         ClassifierModel.load(d)

@@ -1,4 +1,4 @@
-"""The compiled free run (core.freerun) equals the reference ThrusterSimulator."""
+"""The compiled free run (core.sim.freerun) equals the reference ThrusterSimulator."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from thruster_fdd import cli
-from thruster_fdd.core.artifact import CARD_FILE, PROGRAM_FILE
+from thruster_fdd.core.artifact import CARD_FILE, PROGRAM_FILE, WEIGHTS_FILE, file_sha256
 from thruster_fdd.core.nominal.card import read_nominal_card
 from thruster_fdd.core.nominal.evaluation import (
     ProtocolConfig,
@@ -20,7 +20,8 @@ from thruster_fdd.core.nominal.evaluation import (
     spec_for,
     table2_markdown,
 )
-from thruster_fdd.core.nominal.runtime import NominalModel, _check_fast_path
+from thruster_fdd.core.nominal.export import check_program, load_program
+from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.nominal.spec import IqrScaler, ModelSpec
 from thruster_fdd.core.nominal.training import (
     TrainConfig,
@@ -143,13 +144,14 @@ def test_fast_path_equals_exported_program(model_dir: Path) -> None:
     rng = np.random.default_rng(3)
     u = np.stack([rng.uniform(-1, 1, (5, 6)), rng.uniform(11, 16, (5, 6))], axis=-1)
     y = np.stack([rng.uniform(-4000, 4000, (5, 2)), rng.uniform(0, 10, (5, 2))], axis=-1)
+    program = load_program(model_dir)
     with torch.inference_mode():
-        ref = model.program.module()(torch.tensor(u).float(), torch.tensor(y).float()).numpy()
+        ref = program.module()(torch.tensor(u).float(), torch.tensor(y).float()).numpy()
     fast = model.weights.predict(u, y)
     assert np.allclose(fast, ref, rtol=1e-4, atol=np.array([0.05, 1e-4]))
     tampered = replace(model.weights, out_b=model.weights.out_b + 0.1)
     with pytest.raises(ValueError, match="differs"):
-        _check_fast_path(model.program, tampered, Path("x.pt2"))
+        check_program(program, tampered, Path("x.pt2"))
 
 
 def test_card_contract(model_dir: Path) -> None:
@@ -173,11 +175,12 @@ def test_load_missing(tmp_path: Path, model_dir: Path) -> None:
     (d / CARD_FILE).unlink()
     with pytest.raises(ValueError, match=rf"{CARD_FILE}: model card missing"):
         NominalModel.load(d)
-    d2 = tmp_path / "m2"
-    shutil.copytree(model_dir, d2)
-    (d2 / PROGRAM_FILE).unlink()
-    with pytest.raises(ValueError, match=rf"{PROGRAM_FILE}: exported program missing"):
-        NominalModel.load(d2)
+    for name in (PROGRAM_FILE, WEIGHTS_FILE):
+        d2 = tmp_path / f"m2-{name}"
+        shutil.copytree(model_dir, d2)
+        (d2 / name).unlink()
+        with pytest.raises(ValueError, match=rf"{name}: missing"):
+            NominalModel.load(d2)
 
 
 def test_load_corrupt(tmp_path: Path, model_dir: Path) -> None:
@@ -187,8 +190,44 @@ def test_load_corrupt(tmp_path: Path, model_dir: Path) -> None:
         NominalModel.load(d)
     shutil.copy(model_dir / CARD_FILE, d / CARD_FILE)
     (d / PROGRAM_FILE).write_bytes(b"garbage")
-    with pytest.raises(ValueError, match=rf"{PROGRAM_FILE}: not a loadable torch export"):
+    with pytest.raises(ValueError, match=rf"{PROGRAM_FILE}: SHA-256 differs"):
         NominalModel.load(d)
+    with pytest.raises(ValueError, match=rf"{PROGRAM_FILE}: SHA-256 differs"):
+        load_program(d)
+
+
+def _record_digests(d: Path) -> None:
+    """Make the card's digests those of the files as they are now (a deliberate forgery)."""
+    raw = json.loads((d / CARD_FILE).read_text())
+    raw["files"] = {name: file_sha256(d / name) for name in raw["files"]}
+    (d / CARD_FILE).write_text(json.dumps(raw))
+
+
+def test_weights_are_data_never_code(tmp_path: Path, model_dir: Path) -> None:
+    d = _copy(model_dir, tmp_path)
+    (d / WEIGHTS_FILE).write_bytes(b"garbage")
+    _record_digests(d)
+    with pytest.raises(ValueError, match=rf"{WEIGHTS_FILE}: not a weights file"):
+        NominalModel.load(d)
+    # An object array is stored pickled inside the .npz: loading must refuse it, not run it.
+    marker = tmp_path / "ran"
+    payload = np.array([_Payload(str(marker))], dtype=object)
+    with (d / WEIGHTS_FILE).open("wb") as f:
+        np.savez(f, **{"out.bias": payload})
+    _record_digests(d)
+    with pytest.raises(ValueError, match=rf"{WEIGHTS_FILE}: not a weights file"):
+        NominalModel.load(d)
+    assert not marker.exists()
+
+
+class _Payload:
+    """Creates a file when unpickled."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def __reduce__(self) -> tuple:
+        return (Path.touch, (Path(self.path),))
 
 
 @pytest.mark.parametrize(
@@ -210,7 +249,7 @@ def test_load_mismatched(
     d = _copy(model_dir, tmp_path)
     raw = json.loads((d / CARD_FILE).read_text())
     if field == "scaling":
-        raw["scaling"]["voltage"]["median"] += 1.0
+        raw["scaling"]["voltage"]["center"] += 1.0
     else:
         raw[field] = value
     (d / CARD_FILE).write_text(json.dumps(raw))

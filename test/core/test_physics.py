@@ -1,4 +1,4 @@
-"""Tests of the thruster physics simulator (core.physics, core.effects, core.simconfig)."""
+"""Tests of the thruster physics simulator (core.sim.physics, core.sim.effects, core.sim.config)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""How replayed diagnoses are judged against recorded ones (core.replay.check)."""
+"""How replayed diagnoses are judged against recorded ones (traces.replay_check)."""
 
 from __future__ import annotations
 

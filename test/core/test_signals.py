@@ -1,4 +1,4 @@
-"""Tests of the command signals (core.signals)."""
+"""Tests of the command signals (core.sim.signals)."""
 
 from __future__ import annotations
 

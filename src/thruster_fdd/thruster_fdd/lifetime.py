@@ -1,4 +1,5 @@
-"""Child processes that stop when the process that started them dies.
+"""Child processes of ``up`` and ``replay``: how a node's command line is built, and how
+children stop when the process that started them dies.
 
 ``thruster-fdd up`` and ``replay`` start nodes as child processes. When such a parent is killed
 outright (``kill -9``, a test's time-out), its children would run on as orphans and keep
@@ -20,6 +21,19 @@ from collections.abc import Mapping
 
 PARENT_PID_ENV = "THRUSTER_FDD_PARENT_PID"
 _PR_SET_PDEATHSIG = 1
+
+
+def node_command(
+    module: str, namespace: str | None = None, params: Mapping[str, object] | None = None
+) -> list[str]:
+    """The command line of node ``thruster_fdd.nodes.<module>`` in ``namespace`` with ROS
+    parameter overrides ``params`` (``-p name:=value``)."""
+    cmd = [sys.executable, "-m", f"thruster_fdd.nodes.{module}", "--ros-args"]
+    if namespace is not None:
+        cmd += ["-r", f"__ns:={namespace}"]
+    for key, value in (params or {}).items():
+        cmd += ["-p", f"{key}:={value}"]
+    return cmd
 
 
 def child_env() -> dict[str, str]:

@@ -14,7 +14,7 @@ CLASS_NAMES: tuple[str, ...] = (
     "broken_blade_2",
     "biofouling",
 )
-"""The six conditions, spelled as in DESIGN.md (CSV ``condition`` column, model cards, labels)."""
+"""The six conditions (trace CSV ``condition`` column, model cards, ``Diagnosis.label``)."""
 
 
 UNKNOWN = "unknown"

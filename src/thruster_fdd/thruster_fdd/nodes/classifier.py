@@ -1,10 +1,10 @@
 """Classifier node: residuals -> the diagnosed condition of one thruster.
 
 Subscribes to ``fdd/residual`` (which carries the model inputs with the residuals), runs
-``core.diagnosis.DiagnosisStream`` and publishes ``Diagnosis`` on ``fdd/diagnosis`` every hop,
-plus a ``/diagnostics`` status: OK for the nominal classes at 15 V, WARN for low supply voltage,
-ERROR for faults, STALE when residuals stop (then the diagnosis becomes UNKNOWN rather than
-repeating an old label). Residuals made by another nominal model than the one the classifier
+``core.diagnosis.stream.DiagnosisStream`` and publishes ``Diagnosis`` on ``fdd/diagnosis`` every
+hop, plus a ``/diagnostics`` status: OK for the nominal classes at 15 V, WARN for low supply
+voltage, ERROR for faults, STALE when residuals stop (then the diagnosis becomes UNKNOWN rather
+than repeating an old label). Residuals made by another nominal model than the one the classifier
 was trained with are refused (UNKNOWN, ERROR with both model ids).
 """
 
@@ -22,6 +22,7 @@ from thruster_fdd_msgs.msg import Diagnosis, Residual
 from thruster_fdd.core.artifact import default_models_dir
 from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.diagnosis.stream import Decision, DiagnosisStream
+from thruster_fdd.core.labels import UNKNOWN
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
@@ -33,8 +34,7 @@ from thruster_fdd.nodes.common import (
 )
 from thruster_fdd.nodes.nominal_model import NominalModelNode
 
-UNKNOWN = "unknown"
-CONDITIONS = {
+CONDITION_CODES = {
     "nominal_15v": Diagnosis.NOMINAL_15V,
     "nominal_13v": Diagnosis.NOMINAL_13V,
     "nominal_11v8": Diagnosis.NOMINAL_11V8,
@@ -133,7 +133,7 @@ class ClassifierNode(Node):
             msg.measured_current_a,
             msg.residual_rpm,
             msg.residual_current_a,
-            # The same validity as core.residuals.ResidualSample.valid (offline diagnosis).
+            # The same validity as core.nominal.residuals.ResidualSample.valid (offline diagnosis).
             not msg.flags & (Residual.WARMING_UP | Residual.INPUT_INVALID),
         )
         if decision is not None:
@@ -143,7 +143,7 @@ class ClassifierNode(Node):
     def _publish(self, decision: Decision, header: object | None = None) -> None:
         out = Diagnosis(
             thruster_id=self._id,
-            condition=CONDITIONS.get(decision.label, Diagnosis.UNKNOWN),
+            condition=CONDITION_CODES.get(decision.label, Diagnosis.UNKNOWN),
             label=decision.label,
             class_names=list(decision.probabilities),
             probabilities=[float(v) for v in decision.probabilities.values()],

@@ -1,6 +1,6 @@
 """Command player node: drives one thruster with a command signal (a mission stand-in).
 
-Publishes ``ThrusterCommand`` on ``esc/command`` following a signal of ``core.signals``
+Publishes ``ThrusterCommand`` on ``esc/command`` following a signal of ``core.sim.signals``
 (steps, sine:F, chirp, multilevel, mission), looping when it ends. ``thruster-fdd up`` starts one
 per simulated thruster so the telemetry shows a thruster at work.
 """

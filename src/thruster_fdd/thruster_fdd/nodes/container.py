@@ -1,12 +1,13 @@
 """Container: nodes of one or more kinds, one of each per thruster, in a single process.
 
 ``thruster-fdd up`` runs both model stages (``nominal_model``, ``classifier``) of all thrusters
-in one container, so torch and the model code are loaded once, not once per thruster and stage
-(about 300 MB each), and each thruster's classifier gets its residuals straight from its
-nominal model in the process (intra-process delivery, ``--no-intra-process`` turns it off) —
-the ROS composition idea with plain rclpy. Every node keeps its own namespace ``/thruster/<id>``,
-its parameters and its parameter services (``thruster-fdd reload`` works the same), and each
-thruster's nodes are spun by an executor thread of their own (``spin_in_threads``).
+in one container, so the model code and numba's compiled kernels are loaded once, not once per
+thruster and stage (about 100 MB each), and each thruster's classifier gets its residuals
+straight from its nominal model in the process (intra-process delivery, ``--no-intra-process``
+turns it off) — the ROS composition idea with plain rclpy. Every node keeps its own namespace
+``/thruster/<id>``, its parameters and its parameter services (``thruster-fdd reload`` works the
+same), and each thruster's nodes are spun by an executor thread of their own
+(``spin_in_threads``).
 
 Usage: ``python -m thruster_fdd.nodes.container KIND [KIND ...] --thrusters t0 t1
 [-p [KIND:]name=value ...]``; a ``KIND:`` prefix gives the parameter to that kind's nodes only.

@@ -1,6 +1,6 @@
 """Nominal-model node: telemetry -> residuals of the exported healthy-thruster NARX model.
 
-Subscribes to ``esc/telemetry``, feeds the model at its sample time (``core.residuals``),
+Subscribes to ``esc/telemetry``, feeds the model at its sample time (``core.nominal.residuals``),
 publishes ``Residual`` on ``fdd/residual`` and a status on ``/diagnostics``. A missing, corrupt
 or mismatched model stops the node at start with a message naming the file and what is wrong.
 Setting the ``model_dir`` parameter at runtime loads a newly exported model without a restart;

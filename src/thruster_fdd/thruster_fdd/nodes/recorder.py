@@ -4,7 +4,7 @@ Discovers topics periodically (new ones are picked up as they appear), subscribe
 ``raw=True`` and the QoS its publishers offer (reliable only when every publisher is;
 transient-local, deep, when every publisher is, so the history published before the recorder
 matched — the first residuals of a run — is recorded too, as rosbag2 does), and
-hands the bytes to ``core.recording.McapRecorder``. An unwritable folder or a full disk is
+hands the bytes to ``core.traces.recording.McapRecorder``. An unwritable folder or a full disk is
 reported on ``/diagnostics`` as ERROR while the node (and the rest of the graph) keeps running.
 """
 

@@ -11,6 +11,7 @@ import numpy as np
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.diagnosis.stream import EVIDENCE_TAU_S, Decision, DiagnosisStream
+from thruster_fdd.core.errors import ModelMismatchError
 from thruster_fdd.core.labels import UNKNOWN
 from thruster_fdd.core.nominal.residuals import ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
@@ -20,12 +21,12 @@ from thruster_fdd.core.traces.data import Trace
 def check_pair(nominal: NominalModel, classifier: ClassifierModel, classifier_dir: Any) -> None:
     """ValueError if the classifier was not made with this nominal model's residuals."""
     if classifier.nominal_model_id != nominal.model_id:
-        raise ValueError(
+        raise ModelMismatchError(
             f"{Path(classifier_dir) / CARD_FILE}: made with nominal model "
             f"{classifier.nominal_model_id!r}, but the nominal model is {nominal.model_id!r}"
         )
     if not math.isclose(classifier.sample_time_s, nominal.sample_time_s, rel_tol=1e-6):
-        raise ValueError(
+        raise ModelMismatchError(
             f"{Path(classifier_dir) / CARD_FILE}: sample_time_s {classifier.sample_time_s} "
             f"differs from the nominal model's {nominal.sample_time_s}"
         )
@@ -68,7 +69,7 @@ def trace_decisions(
 
 
 def summarize_decisions(decisions: list[Decision], class_names: tuple[str, ...]) -> dict:
-    """DESIGN.md diagnose JSON from decisions.
+    """The ``diagnose`` JSON (docs/contracts.md) from decisions.
 
     ``overall.label`` is the class of highest mean probability over the windows (``"unknown"``
     when most windows' raw label is unknown, or there is no window); ``overall.confidence`` is
@@ -113,7 +114,8 @@ def diagnose_trace(
     -------
     dict
         ``{"overall": {"label", "confidence"}, "windows": [{"t_start", "t_end", "label",
-        "raw_label", "confidence", "probabilities": {class: p}}]}`` (DESIGN.md keys, times in s).
+        "raw_label", "confidence", "probabilities": {class: p}}]}`` (docs/contracts.md keys,
+        times in s).
 
     Raises
     ------

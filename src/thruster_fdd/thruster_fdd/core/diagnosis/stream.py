@@ -249,7 +249,7 @@ class DiagnosisStream:
         residual_current: float,
         valid: bool,
     ) -> Decision | None:
-        """Feed one residual sample (``core.residuals.ResidualSample`` + its command, voltage).
+        """Feed one residual sample (``nominal.residuals.ResidualSample`` + its command, voltage).
 
         Parameters
         ----------

@@ -25,7 +25,7 @@ from thruster_fdd.core.sim.signals import make_signal
 from thruster_fdd.core.traces.data import Trace
 
 PAPER_TABLE3_BEST = {"model": "MLP", "inputs": "residuals", "accuracy": 0.78}
-"""The paper's best Table 3 result (DESIGN.md): MLP on residuals, 78 % average accuracy."""
+"""The paper's best Table 3 result: MLP on residuals, 78 % average accuracy."""
 
 
 @dataclass(frozen=True)

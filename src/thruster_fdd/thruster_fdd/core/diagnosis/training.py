@@ -17,12 +17,31 @@ from scipy.optimize import minimize_scalar
 from torch import nn
 from tqdm import tqdm
 
-from thruster_fdd.core.artifact import CARD_FILE, PROGRAM_FILE, code_version
+from thruster_fdd.core.artifact import (
+    CARD_FILE,
+    PROGRAM_FILE,
+    WEIGHTS_FILE,
+    code_version,
+    file_sha256,
+    scaling_entries,
+    weights_bytes,
+)
+from thruster_fdd.core.atomic import replaced_dir
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, WINDOW_SIGNALS
 from thruster_fdd.core.diagnosis.metrics import classification_metrics
-from thruster_fdd.core.diagnosis.model import KIND, Z_CLIP, ClassifierCard, softmax
+from thruster_fdd.core.diagnosis.model import (
+    KIND,
+    Z_CLIP,
+    ClassifierCard,
+    ClassifierModel,
+    mlp_forward,
+    mlp_layers,
+    softmax,
+)
 from thruster_fdd.core.diagnosis.stream import WindowFeaturizer
+from thruster_fdd.core.errors import BadInputError, ModelMismatchError
 from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.nominal.export import state_arrays
 from thruster_fdd.core.nominal.residuals import ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.traces.data import Trace
@@ -169,7 +188,7 @@ def trace_windows(
         labels = tr.sample_labels()
         if labels is None:
             name = tr.thruster_id or f"#{k}"
-            raise ValueError(f"trace {name} has no condition column or labels to train on")
+            raise BadInputError(f"trace {name} has no condition column or labels to train on")
         residuals = ResidualStream(nominal)
         residuals.reset()
         windows = WindowFeaturizer(n, hop, nominal.sample_time_s)
@@ -192,7 +211,9 @@ def trace_windows(
             t0s.append(t0)
             t1s.append(t1)
     if not xs:
-        raise ValueError(f"no trace is long enough for one {window_s:g} s window of valid samples")
+        raise BadInputError(
+            f"no trace is long enough for one {window_s:g} s window of valid samples"
+        )
     return WindowSet(
         np.asarray(xs), np.asarray(ys), np.asarray(ids), np.asarray(t0s), np.asarray(t1s)
     )
@@ -292,6 +313,7 @@ def train_classifier(
     seed: int = 0,
     config: ClassifierConfig | None = None,
     progress: bool = False,
+    extra: dict[str, Any] | None = None,
 ) -> ClassifierCard:
     """Train, calibrate and (with ``out_dir``) export the window classifier.
 
@@ -310,6 +332,8 @@ def train_classifier(
         Options; None uses the defaults.
     progress : bool
         Show progress bars.
+    extra : dict or None
+        Further JSON-able facts for the card's ``extra`` (e.g. the training files' digests).
 
     Returns
     -------
@@ -323,7 +347,7 @@ def train_classifier(
     """
     config = config or ClassifierConfig()
     if not traces:
-        raise ValueError("no traces to train on")
+        raise BadInputError("no traces to train on")
     nominal = NominalModel.load(nominal_dir)
     windows = trace_windows(
         traces, nominal, window_s=config.window_s, hop_s=config.hop_s, progress=progress
@@ -332,9 +356,9 @@ def train_classifier(
     train, val = windows.subset(~dropped & ~held), windows.subset(~dropped & held)
     missing = [c for i, c in enumerate(CLASS_NAMES) if not np.any(train.y == i)]
     if missing:
-        raise ValueError(f"no training window of class(es) {', '.join(missing)}")
+        raise BadInputError(f"no training window of class(es) {', '.join(missing)}")
     if len(val.y) == 0:
-        raise ValueError("no held-out window for calibration; give longer or more traces")
+        raise BadInputError("no held-out window for calibration; give longer or more traces")
     fill = np.nanmedian(train.x, axis=0)
     fill = np.where(np.isnan(fill), 0.0, fill)
     x_train = np.where(np.isnan(train.x), fill, train.x)
@@ -378,6 +402,7 @@ def train_classifier(
         "n_traces": len(traces),
         "windows": {"train": len(train.y), "heldout": len(val.y)},
         "windows_per_class": {c: int(np.sum(windows.y == i)) for i, c in enumerate(CLASS_NAMES)},
+        **(extra or {}),
     }
     return export_classifier(
         net,
@@ -408,47 +433,84 @@ def export_classifier(
     metrics: dict[str, Any],
     extra: dict[str, Any],
 ) -> ClassifierCard:
-    """Write ``model.pt2`` (torch.export of ``net``) and ``model_card.json`` to ``out_dir``
-    (nothing written when it is None); return the card."""
+    """Export ``net`` to ``out_dir`` (card, weights, program), atomically, and return the card
+    (nothing is written when ``out_dir`` is None).
+
+    Before the new folder replaces an old one, the compiled decision path (``mlp_forward``)
+    must reproduce the program on probe features and the folder must load as a node loads it.
+
+    Raises
+    ------
+    ModelMismatchError
+        If the exported folder does not reproduce the network (nothing is replaced).
+    FileExistsError
+        If ``out_dir`` is an existing file.
+    """
     net = net.eval()
     batch = torch.export.Dim("batch", min=1, max=1 << 20)
     example = torch.zeros(2, len(FEATURE_NAMES))
     program = torch.export.export(net, (example,), dynamic_shapes={"x": {0: batch}})
+    arrays = state_arrays(program.state_dict)
     h = hashlib.sha256()
-    for name, tensor in sorted(program.state_dict.items()):
+    for name, arr in sorted(arrays.items()):
         h.update(name.encode())
-        h.update(tensor.detach().double().numpy().tobytes())
+        h.update(arr.tobytes())
     center = net.center.double().numpy()
     scale = net.scale.double().numpy()
-    card = ClassifierCard(
+    fields = dict(
         kind=KIND,
+        model_id=f"classifier-mlp-{h.hexdigest()[:12]}",
         inputs=WINDOW_SIGNALS,
-        features=FEATURE_NAMES,
         outputs=CLASS_NAMES,
         class_names=CLASS_NAMES,
-        scaling={
-            f: {"center": float(c), "scale": float(s)}
-            for f, c, s in zip(FEATURE_NAMES, center, scale, strict=True)
-        },
-        feature_fill={f: float(v) for f, v in zip(FEATURE_NAMES, fill, strict=True)},
+        scaling=scaling_entries(FEATURE_NAMES, center, scale),
         sample_time_s=nominal.sample_time_s,
-        window_s=float(window_s),
         lookbacks={"window_samples": round(window_s / nominal.sample_time_s)},
-        nominal_model_id=nominal.model_id,
-        temperature=float(temperature),
-        unknown=unknown,
         architecture="mlp",
         hidden=tuple(hidden),
         training_data_digest=digest,
         training_metrics=metrics,
         code_version=code_version(),
         created=datetime.now(UTC).isoformat(timespec="seconds"),
-        model_id=f"classifier-mlp-{h.hexdigest()[:12]}",
+        features=FEATURE_NAMES,
+        feature_fill={f: float(v) for f, v in zip(FEATURE_NAMES, fill, strict=True)},
+        window_s=float(window_s),
+        nominal_model_id=nominal.model_id,
+        temperature=float(temperature),
+        unknown=unknown,
         extra=extra,
     )
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        torch.export.save(program, out / PROGRAM_FILE)
-        (out / CARD_FILE).write_text(card.to_json())
+    if out_dir is None:
+        return ClassifierCard(**fields)
+    with replaced_dir(out_dir) as stage:
+        torch.export.save(program, stage / PROGRAM_FILE)
+        (stage / WEIGHTS_FILE).write_bytes(weights_bytes(arrays))
+        files = {name: file_sha256(stage / name) for name in (WEIGHTS_FILE, PROGRAM_FILE)}
+        card = ClassifierCard(**fields, files=files)
+        (stage / CARD_FILE).write_text(card.to_json())
+        ClassifierModel.load(stage)
+        check_program(program.module(), mlp_layers(arrays, stage / WEIGHTS_FILE), center, scale,
+                      stage / PROGRAM_FILE)  # fmt: skip
     return card
+
+
+def check_program(
+    module: Any,
+    layers: tuple[tuple[np.ndarray, np.ndarray], ...],
+    center: np.ndarray,
+    scale: np.ndarray,
+    path: Path,
+) -> None:
+    """ModelMismatchError if ``mlp_forward`` (the runtime's compiled path) does not reproduce
+    the program on probe features."""
+    rng = np.random.default_rng(0)
+    x = center + scale * rng.normal(scale=3.0, size=(16, len(center)))
+    with torch.inference_mode():
+        ref = module(torch.tensor(x, dtype=torch.float32)).double().numpy()
+    fast = mlp_forward(layers, x, center, scale)
+    err = float(np.max(np.abs(fast - ref)))
+    if not err <= 1e-3 * max(1.0, float(np.max(np.abs(ref)))):
+        raise ModelMismatchError(
+            f"{path}: the program's graph differs from a ReLU MLP with these weights "
+            f"(max logit difference {err:.3g})"
+        )

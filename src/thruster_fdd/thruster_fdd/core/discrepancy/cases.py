@@ -38,7 +38,7 @@ PLAUSIBLE: dict[str, tuple[str, float, float]] = {
 
 
 SIGNALS = ("multilevel", "reversals", "lowspeed")
-"""Command signals of the cases: ``multilevel`` (``core.signals``: random levels held 2-15 s),
+"""Command signals of the cases: ``multilevel`` (``core.sim.signals``: random levels held 2-15 s),
 ``reversals`` (fast large steps: alternating sign, |level| 0.6-1, held 3-8 s, so the duty is
 asked to move by 1.2-2 at once) and ``lowspeed`` (linear ramps of 3-10 s between levels that
 alternate between slow, |u| 0.08-0.35, and anywhere in -1..1: many zero crossings and a long

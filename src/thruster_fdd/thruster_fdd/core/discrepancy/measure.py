@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.ndimage import median_filter
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import Measurement, SimConfig
 from thruster_fdd.core.sim.freerun import free_run
 from thruster_fdd.core.traces.data import Trace
@@ -147,15 +148,15 @@ def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
     """
     n = len(trace.t)
     if n < 100 or trace.t[-1] - trace.t[0] < 20.0:
-        raise ValueError(f"measured trace too short: {n} samples, need >= 100 over >= 20 s")
+        raise BadInputError(f"measured trace too short: {n} samples, need >= 100 over >= 20 s")
     cols = {c: np.asarray(getattr(trace, c), dtype=float) for c in ("t", "command", *CHANNELS)}
     for name, arr in cols.items():
         if not np.all(np.isfinite(arr)):
-            raise ValueError(f"measured trace column {name!r} holds non-finite values")
+            raise BadInputError(f"measured trace column {name!r} holds non-finite values")
     if np.max(np.abs(cols["rpm"])) <= 0.0:
-        raise ValueError("measured trace never turns the thruster (rpm is 0 throughout)")
+        raise BadInputError("measured trace never turns the thruster (rpm is 0 throughout)")
     if np.min(cols["voltage"]) <= 0.0:
-        raise ValueError("measured trace voltage must be > 0 V")
+        raise BadInputError("measured trace voltage must be > 0 V")
     floors = {
         "rpm": 2e-3 * float(np.max(np.abs(cols["rpm"]))),
         "current": max(2e-3 * float(np.max(np.abs(cols["current"]))), 1e-3),
@@ -200,7 +201,7 @@ def noise_free(config: SimConfig) -> SimConfig:
 def simulate_model(config: SimConfig, data: Measured) -> dict[str, np.ndarray]:
     """Free-run, noise-free simulation driven by the measured command and supply voltage.
 
-    The compiled ``core.freerun.free_run``: equal (to rounding, tested) to the reference
+    The compiled ``core.sim.freerun.free_run``: equal (to rounding, tested) to the reference
     ``ThrusterSimulator`` of ``noise_free(config)`` stepped through the measured command, with
     the supply of ``supply_voltage`` set before each step.
 

@@ -1,6 +1,6 @@
 """Discrepancy workflow: calibrate the simulator to a measured trace and name missing effects.
 
-Steps (DESIGN.md "Command line", ``thruster-fdd discrepancy``):
+Steps of ``thruster-fdd discrepancy`` (docs/discrepancy.md; report keys in docs/contracts.md):
 
 1. ``prepare_measured``: the measured trace is despiked, its per-channel noise level estimated,
    and its samples split into interleaved fit / held-out blocks (10 blocks; 2, 5 and 8 held out).
@@ -42,13 +42,14 @@ from thruster_fdd.core.discrepancy.measure import (
     simulate_model,
     weighted_residuals,
 )
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import SimConfig, set_effect
 from thruster_fdd.core.sim.effects import EFFECTS, make_effect
 from thruster_fdd.core.sim.plant import RAD_S_TO_RPM
 from thruster_fdd.core.traces.data import Trace
 
 VERDICTS = ("effects_found", "nothing_missing", "unexplained")
-"""Values of ``report.json``'s ``verdict`` (DESIGN.md)."""
+"""Values of ``report.json``'s ``verdict`` (docs/contracts.md)."""
 
 
 MIN_GAIN = 0.15
@@ -75,7 +76,7 @@ class Candidate:
     Attributes
     ----------
     name : str
-        Effect name (DESIGN.md vocabulary).
+        Effect name (``sim.effects.EFFECTS``).
     fit : Fit
         The re-fitted configuration with the effect added.
     delta_bic : float
@@ -135,7 +136,7 @@ class Result:
     warnings: tuple[str, ...]
 
     def report(self) -> dict:
-        """The report.json mapping, exactly DESIGN.md's keys."""
+        """The report.json mapping, exactly the keys of docs/contracts.md."""
         missing = []
         for name in self.added:
             effect = self.final.config.effect(name)
@@ -172,7 +173,7 @@ def start_config(source: SimConfig, drop: Sequence[str]) -> tuple[SimConfig, tup
     config = source
     for name in drop:
         if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}; expected one of {', '.join(EFFECTS)}")
+            raise BadInputError(f"unknown effect {name!r}; expected one of {', '.join(EFFECTS)}")
         if config.effect(name) is None:
             warnings.append(f"--drop {name}: configuration {config.name!r} has no such effect")
             continue

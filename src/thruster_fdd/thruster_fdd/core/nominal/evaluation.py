@@ -44,7 +44,7 @@ from thruster_fdd.core.sim.signals import make_signal
 from thruster_fdd.core.traces.data import Trace
 
 PAPER_TABLE2_NARX: dict[float, float] = {0.01: 0.9745, 0.02: 0.9931, 0.03: 0.9579, 0.04: 0.6432}
-"""r² of the paper's NARX at 0.01-0.04 Hz (Table 2; DESIGN.md)."""
+"""r² of the paper's NARX at 0.01-0.04 Hz (its Table 2)."""
 
 
 TABLE2_MODELS: tuple[tuple[str, str], ...] = (

@@ -62,7 +62,7 @@ def decimate(t: np.ndarray, period_s: float) -> np.ndarray:
 
 
 class SteppableModel(Protocol):
-    """What :class:`ResidualStream` needs of a nominal model (``core.nominal.NominalModel``)."""
+    """What :class:`ResidualStream` needs of a nominal model (``nominal.runtime.NominalModel``)."""
 
     sample_time_s: float
 

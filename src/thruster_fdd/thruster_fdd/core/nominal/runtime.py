@@ -1,33 +1,30 @@
 """An exported nominal NARX loaded for use: online ``step`` and batch ``predict``.
 
-``NominalModel`` loads an exported directory without training code and evaluates the program's
-own weights with numpy (``NarxWeights``), and per sample with a compiled step (``_narx_step``);
-at load it checks that this fast path reproduces the exported program on probe inputs.
+``NominalModel`` loads an exported folder without torch or training code: the card, then the
+weights file after checking every file's digest (``artifact.load_weights``), evaluated with numpy
+(``NarxWeights``) and per sample with a compiled step (``_narx_step``). That these weights
+reproduce the exported program is checked at export (``nominal.export``), where torch is.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-import torch
 from numba import njit
 
-from thruster_fdd.core.artifact import CARD_FILE, PROGRAM_FILE, data_digest
-from thruster_fdd.core.nominal.card import NominalCard, check_nominal_card, read_nominal_card
-from thruster_fdd.core.nominal.spec import INPUTS, OUTPUTS, IqrScaler, ModelSpec
-
-PROBE_TOLERANCE = 1e-3
-"""Largest relative difference (of the output scale) allowed between the numpy fast path and the
-exported program on the load-time probe inputs (the program runs in float32)."""
+from thruster_fdd.core.artifact import WEIGHTS_FILE, data_digest, load_weights
+from thruster_fdd.core.errors import ModelMismatchError
+from thruster_fdd.core.nominal.card import NominalCard, read_nominal_card
+from thruster_fdd.core.nominal.spec import INPUTS, OUTPUTS, ModelSpec
 
 
 @dataclass(frozen=True)
 class NarxWeights:
-    """The weights of an exported NARX as float64 numpy arrays (the program's own tensors).
+    """The weights of an exported NARX as float64 numpy arrays (the network's own tensors).
 
     ``predict(u_hist, y_hist)`` computes exactly ``LagNet.forward`` (tanh MLP + linear skip,
     optional deadband, scaler) for raw histories of shape (B, input_lags, 2), (B, output_lags, 2).
@@ -45,19 +42,19 @@ class NarxWeights:
     deadband_width: float
 
     @classmethod
-    def from_state_dict(cls, state: dict[str, torch.Tensor], spec: ModelSpec) -> NarxWeights:
-        """Pick the tensors of ``LagNet`` out of a (exported program's) state dict.
+    def from_arrays(cls, state: Mapping[str, np.ndarray], spec: ModelSpec) -> NarxWeights:
+        """Pick the tensors of ``LagNet`` out of its state dict as numpy arrays, by name.
 
         Raises
         ------
         ValueError
-            If a tensor is missing or its shape does not match ``spec``.
+            If an array is missing or its shape does not match ``spec``.
         """
 
         def get(name: str, shape: tuple[int, ...]) -> np.ndarray:
             if name not in state:
-                raise ValueError(f"tensor {name!r} missing from the program")
-            arr = state[name].detach().to(torch.float64).numpy().copy()
+                raise ValueError(f"tensor {name!r} missing")
+            arr = np.array(state[name], dtype=np.float64)
             if arr.shape != shape:
                 raise ValueError(f"tensor {name!r} has shape {arr.shape}, expected {shape}")
             return arr
@@ -70,9 +67,7 @@ class NarxWeights:
             n_in = h
         extra = sorted(k for k in state if k.startswith("hidden.") and k.count(".") == 2)
         if len(extra) != 2 * len(spec.hidden):
-            raise ValueError(
-                f"program has {len(extra) // 2} hidden layers, card {len(spec.hidden)}"
-            )
+            raise ValueError(f"{len(extra) // 2} hidden layers, the card says {len(spec.hidden)}")
         return cls(
             spec=spec,
             u_center=get("u_center", (2,)),
@@ -197,15 +192,15 @@ class NominalModel:
         these measured samples are the free run's initialisation window.
     mode : str
     program : torch.export.ExportedProgram
-        The loaded artifact (its weights are what ``step``/``predict`` evaluate).
+    weights : NarxWeights
+        What ``step`` and ``predict`` evaluate.
     """
 
-    def __init__(self, card: NominalCard, program: Any, weights: NarxWeights) -> None:
+    def __init__(self, card: NominalCard, weights: NarxWeights) -> None:
         self.card = card
         self.model_id = card.model_id
         self.sample_time_s = card.sample_time_s
         self.mode = card.mode
-        self.program = program
         self.weights = weights
         self._nu = card.lookbacks["input"]
         self._ny = card.lookbacks["output"]
@@ -220,59 +215,45 @@ class NominalModel:
 
     @classmethod
     def load(cls, model_dir: str | Path) -> NominalModel:
-        """Load ``model_dir`` (``model_card.json`` + ``model.pt2``).
+        """Load an exported folder (``model_card.json`` + the files it lists).
 
         Raises
         ------
-        ValueError
-            Naming the file and what is wrong or differs: missing directory or files, corrupt
-            card or program, wrong kind / inputs / outputs / mode, program weights that do not
-            match the card (lookbacks, hidden sizes, scaling), or a program whose output the
-            fast path does not reproduce.
+        ModelMismatchError
+            Naming the file and what is wrong or differs: missing folder or files, a file whose
+            digest differs from the card's, a corrupt card or weights file, wrong kind / inputs /
+            outputs / mode, weights that do not match the card (lookbacks, hidden sizes,
+            scaling).
         """
         model_dir = Path(model_dir)
         if not model_dir.is_dir():
-            raise ValueError(f"{model_dir}: model directory missing")
+            raise ModelMismatchError(f"{model_dir}: model directory missing")
         card = read_nominal_card(model_dir)
-        card_path = model_dir / CARD_FILE
-        check_nominal_card(card, card_path)
+        arrays = load_weights(model_dir, card)
+        spec = ModelSpec(
+            card.architecture,
+            card.hidden,
+            card.lookbacks["input"],
+            card.lookbacks["output"],
+            card.feedback,
+        )
+        path = model_dir / WEIGHTS_FILE
         try:
-            spec = ModelSpec(
-                card.architecture,
-                card.hidden,
-                card.lookbacks["input"],
-                card.lookbacks["output"],
-                card.feedback,
-            )
-            u_scaler = IqrScaler.from_dict(INPUTS, card.scaling)
-            y_scaler = IqrScaler.from_dict(OUTPUTS, card.scaling)
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"{card_path}: {exc}") from exc
-        prog_path = model_dir / PROGRAM_FILE
-        if not prog_path.is_file():
-            raise ValueError(f"{prog_path}: exported program missing")
-        try:
-            program = torch.export.load(prog_path)
-        except Exception as exc:
-            raise ValueError(f"{prog_path}: not a loadable torch export program ({exc})") from exc
-        try:
-            weights = NarxWeights.from_state_dict(program.state_dict, spec)
+            weights = NarxWeights.from_arrays(arrays, spec)
         except ValueError as exc:
-            raise ValueError(f"{prog_path}: does not match {CARD_FILE}: {exc}") from exc
-        for name, scaler, center, scale in (
-            ("inputs", u_scaler, weights.u_center, weights.u_scale),
-            ("outputs", y_scaler, weights.y_center, weights.y_scale),
+            raise ModelMismatchError(f"{path}: does not match the card: {exc}") from exc
+        for name, signals, center, scale in (
+            ("inputs", INPUTS, weights.u_center, weights.u_scale),
+            ("outputs", OUTPUTS, weights.y_center, weights.y_scale),
         ):
-            if not (
-                np.allclose(center, scaler.center, rtol=1e-6) and np.allclose(scale, scaler.scale)
-            ):
-                raise ValueError(
-                    f"{prog_path}: scaling of {name} differs from {CARD_FILE}: program "
-                    f"center {center.tolist()} scale {scale.tolist()}, card center "
-                    f"{list(scaler.center)} scale {list(scaler.scale)}"
+            want_center, want_scale = card.scaling_of(signals)
+            if not (np.allclose(center, want_center, rtol=1e-6) and np.allclose(scale, want_scale)):
+                raise ModelMismatchError(
+                    f"{path}: scaling of {name} differs from the card: weights center "
+                    f"{center.tolist()} scale {scale.tolist()}, card center "
+                    f"{want_center.tolist()} scale {want_scale.tolist()}"
                 )
-        _check_fast_path(program, weights, prog_path)
-        model = cls(card, program, weights)
+        model = cls(card, weights)
         # Compile (or load from numba's cache) the online step now, not at the first sample.
         model.step(0.0, 15.0, 0.0, 0.0)
         model.reset()
@@ -371,7 +352,11 @@ class NominalModel:
 
 
 def narx_free_run(
-    predict_fn: Any, u: np.ndarray, y_init: np.ndarray, nu: int, ny: int
+    predict_fn: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    u: np.ndarray,
+    y_init: np.ndarray,
+    nu: int,
+    ny: int,
 ) -> np.ndarray:
     """Parallel (free-run) simulation of a NARX from an initialisation window.
 
@@ -396,30 +381,3 @@ def narx_free_run(
     for k in range(w, n):
         y[k] = predict_fn(u[None, k - nu : k], y[None, k - ny : k])[0]
     return y[w:]
-
-
-def _check_fast_path(program: Any, weights: NarxWeights, path: Path) -> None:
-    """ValueError if the numpy fast path does not reproduce ``program`` on probe inputs."""
-    rng = np.random.default_rng(0)
-    spec = weights.spec
-    u = weights.u_center + weights.u_scale * rng.normal(size=(8, spec.input_lags, 2))
-    y = weights.y_center + weights.y_scale * rng.normal(size=(8, spec.output_lags, 2))
-    try:
-        with torch.inference_mode():
-            ref = (
-                program.module()(
-                    torch.tensor(u, dtype=torch.float32), torch.tensor(y, dtype=torch.float32)
-                )
-                .double()
-                .numpy()
-            )
-    except Exception as exc:
-        raise ValueError(f"{path}: the program fails on (B, {spec.input_lags}, 2), "
-                         f"(B, {spec.output_lags}, 2) inputs ({exc})") from exc  # fmt: skip
-    fast = weights.predict(u, y)
-    err = np.max(np.abs(fast - ref) / weights.y_scale)
-    if not err <= PROBE_TOLERANCE:
-        raise ValueError(
-            f"{path}: the program's graph differs from a {spec.architecture} with these weights "
-            f"(max scaled difference {err:.3g})"
-        )

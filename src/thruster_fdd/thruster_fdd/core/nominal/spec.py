@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from thruster_fdd.core.artifact import scaling_entries
+
 INPUTS: tuple[str, ...] = ("command", "voltage")
 """Model inputs, in order: normalised command (-1..1), bus voltage (V)."""
 
@@ -96,11 +98,8 @@ class IqrScaler:
         return np.asarray(z, dtype=float) * np.asarray(self.scale) + np.asarray(self.center)
 
     def to_dict(self) -> dict[str, dict[str, float]]:
-        """``{signal: {"median": ..., "iqr": ...}}`` for the model card."""
-        return {
-            n: {"median": c, "iqr": s}
-            for n, c, s in zip(self.names, self.center, self.scale, strict=True)
-        }
+        """``{signal: {"center": median, "scale": IQR}}``, the model card's scaling entries."""
+        return scaling_entries(self.names, np.asarray(self.center), np.asarray(self.scale))
 
     @classmethod
     def from_dict(cls, names: tuple[str, ...], d: dict[str, Any]) -> IqrScaler:
@@ -110,8 +109,8 @@ class IqrScaler:
             raise ValueError(f"scaling lacks signal(s) {', '.join(missing)}")
         return cls(
             tuple(names),
-            tuple(float(d[n]["median"]) for n in names),
-            tuple(float(d[n]["iqr"]) for n in names),
+            tuple(float(d[n]["center"]) for n in names),
+            tuple(float(d[n]["scale"]) for n in names),
         )
 
 

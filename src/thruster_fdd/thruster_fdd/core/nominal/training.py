@@ -27,8 +27,9 @@ from torch import nn
 from tqdm import tqdm
 
 from thruster_fdd.core.artifact import data_digest
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.nominal.card import NominalCard
-from thruster_fdd.core.nominal.export import export_narx
+from thruster_fdd.core.nominal.export import export_narx, state_arrays
 from thruster_fdd.core.nominal.networks import LagNet, RecurrentNet, build_network
 from thruster_fdd.core.nominal.runtime import NarxWeights, narx_free_run
 from thruster_fdd.core.nominal.spec import INPUTS, OUTPUTS, IqrScaler, ModelSpec
@@ -128,14 +129,14 @@ def resample(trace: Trace, sample_time_s: float) -> Series:
         grid = np.arange(t[0], t[-1] + 1e-9, sample_time_s)
         cols = np.stack([np.interp(grid, t, c) for c in cols.T], axis=1)
     if not np.all(np.isfinite(cols)):
-        raise ValueError("trace holds non-finite samples")
+        raise BadInputError("trace holds non-finite samples")
     return Series(cols[:, :2].copy(), cols[:, 2:].copy())
 
 
 def prepare_series(traces: Sequence[Trace], sample_time_s: float) -> list[Series]:
     """Resample every trace; ValueError when there is nothing to train on."""
     if not traces:
-        raise ValueError("no traces given")
+        raise BadInputError("no traces given")
     return [resample(tr, sample_time_s) for tr in traces]
 
 
@@ -232,7 +233,7 @@ def _train_one_step(
     y_h = _tensor(np.concatenate([p[1] for p in parts]))
     target = _tensor(np.concatenate([p[2] for p in parts]))
     if len(target) == 0:
-        raise ValueError(f"traces are shorter than the lookback ({spec.warmup} samples)")
+        raise BadInputError(f"traces are shorter than the lookback ({spec.warmup} samples)")
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(config.epochs, 1))
     y_scale = net.y_scale
@@ -268,7 +269,7 @@ def _train_free_run(
         y_all.append(s.y)
         offset += n
     if not starts:
-        raise ValueError(f"traces are shorter than lookback + horizon ({w + h} samples)")
+        raise BadInputError(f"traces are shorter than lookback + horizon ({w + h} samples)")
     start_idx = np.concatenate(starts)
     u = _tensor(np.concatenate(u_all))
     y = _tensor(np.concatenate(y_all))
@@ -314,7 +315,7 @@ def _train_recurrent(
             chunks_u.append(s.u[a : a + length])
             chunks_y.append(s.y[a + 1 : a + 1 + length])
     if not chunks_u:
-        raise ValueError(f"traces are shorter than the burn-in ({config.burn_in} samples)")
+        raise BadInputError(f"traces are shorter than the burn-in ({config.burn_in} samples)")
     lengths = {len(c) for c in chunks_u}
     keep = min(lengths)
     u = _tensor(np.stack([c[:keep] for c in chunks_u]))
@@ -355,7 +356,7 @@ def predict_sequence(net: nn.Module, seq: Series, mode: str = "parallel") -> np.
     w = spec.warmup
     if n <= w:
         return out
-    weights = NarxWeights.from_state_dict(net.state_dict(), spec) if spec.is_narx else None
+    weights = NarxWeights.from_arrays(state_arrays(net), spec) if spec.is_narx else None
     if spec.is_narx and mode == "parallel" and weights is not None:
         out[w:] = narx_free_run(
             weights.predict, seq.u, seq.y[:w], spec.input_lags, spec.output_lags
@@ -482,6 +483,7 @@ def train_nominal(
     sample_time_s: float = DEFAULT_SAMPLE_TIME_S,
     validation_fraction: float = 0.2,
     progress: bool = False,
+    extra: dict[str, Any] | None = None,
 ) -> NominalCard:
     """Train the nominal NARX on nominal traces and export it to ``out_dir``.
 
@@ -508,6 +510,8 @@ def train_nominal(
         Held-out tail fraction for the card's validation metrics (0 to skip).
     progress : bool
         Show tqdm progress bars.
+    extra : dict or None
+        Further JSON-able facts for the card's ``extra`` (e.g. the training files' digests).
 
     Returns
     -------
@@ -516,7 +520,7 @@ def train_nominal(
     config = replace(config or default_config(), seed=seed)
     spec = spec if spec is not None else default_spec(config.mode)
     if not spec.is_narx:
-        raise ValueError(f"the nominal model is a NARX, got {spec.architecture}")
+        raise BadInputError(f"the nominal model is a NARX, got {spec.architecture}")
     seqs = prepare_series(traces, sample_time_s)
     metrics: dict[str, Any] = {}
     if validation_fraction > 0:
@@ -534,6 +538,7 @@ def train_nominal(
         "n_samples": int(sum(len(s.u) for s in seqs)),
         "n_traces": len(seqs),
         "init_window_s": spec.warmup * sample_time_s,
+        **(extra or {}),
     }
     return export_narx(
         net,

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.effects import EFFECTS, Effect, canonical_order, make_effect
 
 _PRESETS = ("t100", "t200")
@@ -27,11 +28,11 @@ _PRESETS = ("t100", "t200")
 
 def _check_number(owner: str, name: str, value: Any, *, positive: bool = False) -> None:
     if not isinstance(value, (int, float)) or isinstance(value, bool) or math.isnan(value):
-        raise ValueError(f"{owner}.{name} must be a number, got {value!r}")
+        raise BadInputError(f"{owner}.{name} must be a number, got {value!r}")
     if positive and value <= 0:
-        raise ValueError(f"{owner}.{name} must be > 0, got {value}")
+        raise BadInputError(f"{owner}.{name} must be > 0, got {value}")
     if value < 0:
-        raise ValueError(f"{owner}.{name} must be >= 0, got {value}")
+        raise BadInputError(f"{owner}.{name} must be >= 0, got {value}")
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ class ThrusterParams:
             if f.name != "water_temp_c":
                 _check_number("params", f.name, getattr(self, f.name), positive=f.name in positive)
         if not math.isfinite(self.water_temp_c):
-            raise ValueError(f"params.water_temp_c must be finite, got {self.water_temp_c}")
+            raise BadInputError(f"params.water_temp_c must be finite, got {self.water_temp_c}")
 
 
 @dataclass(frozen=True)
@@ -131,9 +132,9 @@ class Measurement:
             if f.name != "floor_zeroes_current":
                 _check_number("measurement", f.name, getattr(self, f.name))
         if not isinstance(self.floor_zeroes_current, bool):
-            raise ValueError("measurement.floor_zeroes_current must be true or false")
+            raise BadInputError("measurement.floor_zeroes_current must be true or false")
         if self.outlier_prob > 1:
-            raise ValueError(f"measurement.outlier_prob must be <= 1, got {self.outlier_prob}")
+            raise BadInputError(f"measurement.outlier_prob must be <= 1, got {self.outlier_prob}")
 
 
 @dataclass(frozen=True)
@@ -165,7 +166,7 @@ class SimConfig:
         object.__setattr__(self, "effects", canonical_order(tuple(self.effects)))
         _check_number("config", "spread", self.spread)
         if self.spread > 0.2:
-            raise ValueError(f"config.spread must be <= 0.2 (a fraction), got {self.spread}")
+            raise BadInputError(f"config.spread must be <= 0.2 (a fraction), got {self.spread}")
 
     @property
     def effect_names(self) -> tuple[str, ...]:
@@ -175,21 +176,21 @@ class SimConfig:
     def effect(self, name: str) -> Effect | None:
         """Return the effect called ``name``, or None if absent (ValueError if not a name)."""
         if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}; expected one of {', '.join(EFFECTS)}")
+            raise BadInputError(f"unknown effect {name!r}; expected one of {', '.join(EFFECTS)}")
         return next((e for e in self.effects if e.name == name), None)
 
 
 def add_effect(config: SimConfig, effect: Effect) -> SimConfig:
     """Return a copy of ``config`` with ``effect`` added (ValueError if already present)."""
     if config.effect(effect.name) is not None:
-        raise ValueError(f"effect {effect.name!r} is already present; use replace_effect")
+        raise BadInputError(f"effect {effect.name!r} is already present; use replace_effect")
     return replace(config, effects=(*config.effects, effect))
 
 
 def remove_effect(config: SimConfig, name: str) -> SimConfig:
     """Return a copy of ``config`` without effect ``name`` (ValueError if absent)."""
     if config.effect(name) is None:
-        raise ValueError(f"effect {name!r} is not present in config {config.name!r}")
+        raise BadInputError(f"effect {name!r} is not present in config {config.name!r}")
     return replace(config, effects=tuple(e for e in config.effects if e.name != name))
 
 
@@ -250,20 +251,20 @@ def preset_names() -> tuple[str, ...]:
 def config_from_dict(data: Any, *, origin: str = "config") -> SimConfig:
     """Build a configuration from the YAML mapping layout (ValueError with the reason if bad)."""
     if not isinstance(data, dict):
-        raise ValueError(f"{origin}: expected a mapping with name, params, effects, measurement")
+        raise BadInputError(f"{origin}: expected a mapping with name, params, effects, measurement")
     unknown = sorted(set(data) - {"name", "params", "effects", "measurement", "spread"})
     if unknown:
-        raise ValueError(f"{origin}: unknown top-level key(s) {unknown}")
+        raise BadInputError(f"{origin}: unknown top-level key(s) {unknown}")
     if "params" not in data or not isinstance(data["params"], dict):
-        raise ValueError(f"{origin}: 'params' mapping is required")
+        raise BadInputError(f"{origin}: 'params' mapping is required")
     effects_data = data.get("effects") or {}
     if not isinstance(effects_data, dict):
-        raise ValueError(f"{origin}: 'effects' must map effect names to parameter mappings")
+        raise BadInputError(f"{origin}: 'effects' must map effect names to parameter mappings")
     try:
         params = ThrusterParams(**data["params"])
         measurement = Measurement(**(data.get("measurement") or {}))
     except TypeError as exc:
-        raise ValueError(f"{origin}: {exc}") from exc
+        raise BadInputError(f"{origin}: {exc}") from exc
     effects = tuple(
         make_effect(str(name), values if isinstance(values, dict) else {})
         for name, values in effects_data.items()
@@ -302,7 +303,7 @@ def load_config(source: str | Path) -> SimConfig:
     else:
         path = Path(source)
         if not path.is_file():
-            raise ValueError(
+            raise BadInputError(
                 f"{source!r} is neither a preset ({', '.join(_PRESETS)}) nor an existing file"
             )
         text = path.read_text()
@@ -310,7 +311,7 @@ def load_config(source: str | Path) -> SimConfig:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ValueError(f"{origin}: not valid YAML ({exc})") from exc
+        raise BadInputError(f"{origin}: not valid YAML ({exc})") from exc
     return config_from_dict(data, origin=origin)
 
 

@@ -1,4 +1,4 @@
-"""Named, parameterised simulator effects (DESIGN.md "Canonical names", discrepancy effects).
+"""Named, parameterised simulator effects (docs/contracts.md, "Canonical names").
 
 Each effect is a frozen dataclass holding its parameters; a configuration holds a tuple of them.
 The discrepancy workflow reports missing effects with exactly these names and parameters, so the
@@ -11,6 +11,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 from typing import ClassVar
+
+from thruster_fdd.core.errors import BadInputError
 
 
 @dataclass(frozen=True)
@@ -32,13 +34,13 @@ class Effect:
             or isinstance(value, bool)
             or not math.isfinite(value)
         ):
-            raise ValueError(f"{self.name}.{field_name} must be a finite number, got {value!r}")
+            raise BadInputError(f"{self.name}.{field_name} must be a finite number, got {value!r}")
         if positive and value <= 0:
-            raise ValueError(f"{self.name}.{field_name} must be > 0, got {value}")
+            raise BadInputError(f"{self.name}.{field_name} must be > 0, got {value}")
         if value < 0:
-            raise ValueError(f"{self.name}.{field_name} must be >= 0, got {value}")
+            raise BadInputError(f"{self.name}.{field_name} must be >= 0, got {value}")
         if upper is not None and value >= upper:
-            raise ValueError(f"{self.name}.{field_name} must be < {upper}, got {value}")
+            raise BadInputError(f"{self.name}.{field_name} must be < {upper}, got {value}")
 
 
 @dataclass(frozen=True)
@@ -202,20 +204,20 @@ def make_effect(name: str, params: Mapping[str, float]) -> Effect:
         If the name is unknown, a parameter is missing or unknown, or a value is invalid.
     """
     if name not in EFFECTS:
-        raise ValueError(f"unknown effect {name!r}; expected one of {', '.join(EFFECTS)}")
+        raise BadInputError(f"unknown effect {name!r}; expected one of {', '.join(EFFECTS)}")
     cls = EFFECTS[name]
     expected = [f.name for f in fields(cls)]
     unknown = sorted(set(params) - set(expected))
     missing = [p for p in expected if p not in params]
     if unknown or missing:
-        raise ValueError(
+        raise BadInputError(
             f"effect {name!r} takes parameter(s) {', '.join(expected)}; "
             f"missing {missing or 'none'}, unknown {unknown or 'none'}"
         )
     try:
         values = {p: float(params[p]) for p in expected}
     except (TypeError, ValueError) as exc:
-        raise ValueError(
+        raise BadInputError(
             f"effect {name!r}: parameters must be numbers, got {dict(params)}"
         ) from exc
     return cls(**values)
@@ -233,8 +235,8 @@ def canonical_order(effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
     seen: set[str] = set()
     for effect in effects:
         if not isinstance(effect, Effect) or effect.name not in EFFECTS:
-            raise ValueError(f"not a registered effect: {effect!r}")
+            raise BadInputError(f"not a registered effect: {effect!r}")
         if effect.name in seen:
-            raise ValueError(f"effect {effect.name!r} given twice")
+            raise BadInputError(f"effect {effect.name!r} given twice")
         seen.add(effect.name)
     return tuple(sorted(effects, key=lambda e: order.index(e.name)))

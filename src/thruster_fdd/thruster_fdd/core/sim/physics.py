@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import SimConfig, perturb_unit
 from thruster_fdd.core.sim.plant import (
     CONDITION_SPECS,
@@ -68,7 +69,7 @@ class ThrusterSimulator:
     config : SimConfig
         Configuration of the nominal unit; with ``config.spread > 0`` the unit is drawn by seed.
     condition : str
-        One of ``CONDITION_SPECS`` (DESIGN.md class names).
+        One of ``labels.CLASS_NAMES``.
     voltage : float or None
         Supply voltage in V; None uses the condition's (15.0 / 13.0 / 11.8 V; faults 15.0 V).
     seed : int
@@ -84,7 +85,7 @@ class ThrusterSimulator:
         seed: int = 0,
     ) -> None:
         if not isinstance(config, SimConfig):
-            raise ValueError(f"config must be a SimConfig, got {type(config).__name__}")
+            raise BadInputError(f"config must be a SimConfig, got {type(config).__name__}")
         condition_spec(condition)
         check_voltage(voltage)
         self.config = config
@@ -150,9 +151,9 @@ class ThrusterSimulator:
         self, command: float, dt: float
     ) -> tuple[float, float, float, float, float, float, float]:
         if not math.isfinite(command):
-            raise ValueError(f"command must be finite, got {command}")
+            raise BadInputError(f"command must be finite, got {command}")
         if not (math.isfinite(dt) and dt >= 0.0):
-            raise ValueError(f"dt must be a finite duration >= 0 s, got {dt}")
+            raise BadInputError(f"dt must be a finite duration >= 0 s, got {dt}")
         u = min(1.0, max(-1.0, float(command)))
         for value, length in self._delayed_segments(u, dt):
             self._integrate(value, length)
@@ -320,7 +321,7 @@ def simulate(
     command : np.ndarray, shape (n,)
         Normalised commands; clamped to [-1, 1].
     condition : str
-        Condition name (DESIGN.md classes).
+        Condition name (``labels.CLASS_NAMES``).
     voltage : float or None
         Supply voltage, V; None uses the condition's.
     seed : int
@@ -335,13 +336,13 @@ def simulate(
     t = np.asarray(t, dtype=float)
     command = np.asarray(command, dtype=float)
     if t.ndim != 1 or command.shape != t.shape or len(t) == 0:
-        raise ValueError(
+        raise BadInputError(
             f"t and command must be 1-D of equal non-zero length: {t.shape}, {command.shape}"
         )
     if not np.all(np.isfinite(t)) or not np.all(np.isfinite(command)):
-        raise ValueError("t and command must be finite")
+        raise BadInputError("t and command must be finite")
     if len(t) > 1 and not np.all(np.diff(t) > 0):
-        raise ValueError("t must be strictly increasing")
+        raise BadInputError("t must be strictly increasing")
     sim = ThrusterSimulator(config, condition, voltage=voltage, seed=seed)
     dts = np.diff(t, prepend=t[0]).tolist()
     rows = [sim._advance(c, dt) for c, dt in zip(command.tolist(), dts, strict=False)]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import load_config
 from thruster_fdd.core.sim.physics import ThrusterSimulator, simulate
 from thruster_fdd.core.sim.signals import make_signal
@@ -35,9 +36,9 @@ def run_scenario(
     source : str or Path
         Preset name (``t100``, ``t200``) or simulator configuration YAML.
     condition : str
-        Condition at start (DESIGN.md class name).
+        Condition at start (``labels.CLASS_NAMES``).
     signal : str
-        Command signal spec of ``core.signals.make_signal``; ignored with ``command_csv``.
+        Command signal spec of ``core.sim.signals.make_signal``; ignored with ``command_csv``.
     command_csv : Path or None
         Command history (columns ``t``, ``command``) that replaces ``signal``, ``duration_s``
         and ``rate_hz``: the trace has one row per row of the file.
@@ -63,7 +64,7 @@ def run_scenario(
         For an unknown preset, condition or signal, or a fault given by half.
     """
     if (fault_at_s is None) != (fault_condition is None):
-        raise ValueError("a fault needs both --fault-at and --fault-condition")
+        raise BadInputError("a fault needs both --fault-at and --fault-condition")
     config = load_config(source)
     if command_csv is not None:
         t, command = read_command_csv(command_csv)

@@ -7,6 +7,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from thruster_fdd.core.errors import BadInputError
+
 SIGNAL_FORMS = ("steps", "sine:F", "chirp", "multilevel", "mission")
 """Accepted ``spec`` forms of ``make_signal`` (F is a frequency in Hz)."""
 
@@ -59,9 +61,9 @@ def make_signal(
         If the spec is not one of the accepted forms, or duration or rate are not positive.
     """
     if not (math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration_s must be > 0, got {duration_s}")
+        raise BadInputError(f"duration_s must be > 0, got {duration_s}")
     if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        raise BadInputError(f"rate_hz must be > 0, got {rate_hz}")
     n = max(1, round(duration_s * rate_hz))
     t = np.arange(n) / rate_hz
     rng = np.random.default_rng(seed)
@@ -80,7 +82,9 @@ def make_signal(
     elif spec == "mission":
         command = _mission(t, rng)
     else:
-        raise ValueError(f"unknown signal spec {spec!r}; expected one of {', '.join(SIGNAL_FORMS)}")
+        raise BadInputError(
+            f"unknown signal spec {spec!r}; expected one of {', '.join(SIGNAL_FORMS)}"
+        )
     return t, np.clip(command, -1.0, 1.0)
 
 
@@ -88,9 +92,11 @@ def _parse_frequency(spec: str, rate_hz: float) -> float:
     try:
         freq = float(spec.split(":", 1)[1])
     except ValueError as exc:
-        raise ValueError(f"bad sine spec {spec!r}; expected 'sine:F' with F in Hz") from exc
+        raise BadInputError(f"bad sine spec {spec!r}; expected 'sine:F' with F in Hz") from exc
     if not (math.isfinite(freq) and 0 < freq < rate_hz / 2):
-        raise ValueError(f"sine frequency must be in (0, {rate_hz / 2}) Hz (Nyquist), got {freq}")
+        raise BadInputError(
+            f"sine frequency must be in (0, {rate_hz / 2}) Hz (Nyquist), got {freq}"
+        )
     return freq
 
 

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.traces.data import TRACE_COLUMNS, Trace
 
 
 def write_trace_csv(trace: Trace, path: str | Path) -> None:
-    """Write ``trace`` as a trace CSV (DESIGN.md columns, then ``condition``/``thruster_id``).
+    """Write ``trace`` as a trace CSV (the columns, then ``condition`` / ``thruster_id``).
 
     Parameters
     ----------
@@ -59,26 +60,28 @@ def read_trace_csv(path: str | Path) -> Trace:
         reader = csv.DictReader(f)
         if reader.fieldnames is None:
             expected = ", ".join(TRACE_COLUMNS)
-            raise ValueError(f"{path}: empty file, expected a header with {expected}")
+            raise BadInputError(f"{path}: empty file, expected a header with {expected}")
         fields = [name.strip() for name in reader.fieldnames]
         missing = [c for c in TRACE_COLUMNS if c not in fields]
         if missing:
-            raise ValueError(f"{path}: missing trace column(s) {', '.join(missing)}")
+            raise BadInputError(f"{path}: missing trace column(s) {', '.join(missing)}")
         rows = [{k.strip(): (v or "").strip() for k, v in row.items() if k} for row in reader]
     if not rows:
-        raise ValueError(f"{path}: no samples")
+        raise BadInputError(f"{path}: no samples")
     numeric = [c for c in fields if c not in ("condition", "thruster_id")]
     values: dict[str, np.ndarray] = {}
     for name in numeric:
         try:
             values[name] = np.array([float(r[name]) for r in rows])
         except ValueError as exc:
-            raise ValueError(f"{path}: column {name!r} holds a value that is not a number") from exc
+            raise BadInputError(
+                f"{path}: column {name!r} holds a value that is not a number"
+            ) from exc
     labels = np.array([r.get("condition", "") for r in rows], dtype=object)
     if "condition" not in fields or not labels.any():
         labels_or_none, condition = None, None
     elif (labels == "").any():
-        raise ValueError(f"{path}: column 'condition' is empty on some rows")
+        raise BadInputError(f"{path}: column 'condition' is empty on some rows")
     elif (labels == labels[0]).all():
         labels_or_none, condition = None, str(labels[0])
     else:
@@ -97,7 +100,7 @@ def read_trace_csv(path: str | Path) -> Trace:
 def _single_label(path: Path, rows: list[dict[str, str]], column: str) -> str | None:
     labels = {r.get(column, "") for r in rows} - {""}
     if len(labels) > 1:
-        raise ValueError(f"{path}: column {column!r} mixes {sorted(labels)}; one value per file")
+        raise BadInputError(f"{path}: column {column!r} mixes {sorted(labels)}; one value per file")
     return labels.pop() if labels else None
 
 
@@ -119,19 +122,19 @@ def read_command_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         reader = csv.DictReader(f)
         fields = [name.strip() for name in reader.fieldnames or []]
         if "t" not in fields or "command" not in fields:
-            raise ValueError(f"{path}: needs columns t and command, has {fields}")
+            raise BadInputError(f"{path}: needs columns t and command, has {fields}")
         rows = [{k.strip(): v for k, v in row.items() if k} for row in reader]
     try:
         t = np.array([float(r["t"]) for r in rows])
         command = np.array([float(r["command"]) for r in rows])
     except ValueError as exc:
-        raise ValueError(f"{path}: t and command must be numbers") from exc
+        raise BadInputError(f"{path}: t and command must be numbers") from exc
     if len(t) < 2:
-        raise ValueError(f"{path}: needs at least two rows")
+        raise BadInputError(f"{path}: needs at least two rows")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(command))):
-        raise ValueError(f"{path}: t and command must be finite")
+        raise BadInputError(f"{path}: t and command must be finite")
     if not np.all(np.diff(t) > 0):
-        raise ValueError(f"{path}: t must be strictly increasing")
+        raise BadInputError(f"{path}: t must be strictly increasing")
     if np.any(np.abs(command) > 1.0):
-        raise ValueError(f"{path}: command must lie within -1..1")
+        raise BadInputError(f"{path}: command must lie within -1..1")
     return t, command

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
 
 TRACE_COLUMNS: tuple[str, ...] = ("t", "command", "voltage", "rpm", "current")
@@ -54,24 +55,24 @@ class Trace:
         for name in TRACE_COLUMNS:
             arr = getattr(self, name)
             if not isinstance(arr, np.ndarray) or arr.ndim != 1:
-                raise ValueError(f"trace column {name!r} must be a 1-D numpy array")
+                raise BadInputError(f"trace column {name!r} must be a 1-D numpy array")
             if len(arr) != n:
-                raise ValueError(f"trace column {name!r} has {len(arr)} samples, 't' has {n}")
+                raise BadInputError(f"trace column {name!r} has {len(arr)} samples, 't' has {n}")
         for name, arr in self.extra.items():
             if len(arr) != n:
-                raise ValueError(f"extra column {name!r} has {len(arr)} samples, 't' has {n}")
+                raise BadInputError(f"extra column {name!r} has {len(arr)} samples, 't' has {n}")
         if n > 1 and not np.all(np.diff(self.t) > 0):
-            raise ValueError("trace column 't' must be strictly increasing")
+            raise BadInputError("trace column 't' must be strictly increasing")
         names = set() if self.condition is None else {self.condition}
         if self.labels is not None:
             if self.condition is not None:
-                raise ValueError("give either one condition or per-sample labels, not both")
+                raise BadInputError("give either one condition or per-sample labels, not both")
             if len(self.labels) != n:
-                raise ValueError(f"labels have {len(self.labels)} entries, 't' has {n}")
+                raise BadInputError(f"labels have {len(self.labels)} entries, 't' has {n}")
             names = set(self.labels.tolist())
         unknown = names - set(CLASS_NAMES)
         if unknown:
-            raise ValueError(
+            raise BadInputError(
                 f"unknown condition {sorted(unknown)}; expected one of {', '.join(CLASS_NAMES)}"
             )
 

@@ -6,6 +6,7 @@ import hashlib
 from collections.abc import Iterable
 from pathlib import Path
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.traces.csv_io import read_trace_csv, write_trace_csv
 from thruster_fdd.core.traces.data import Trace
 from thruster_fdd.core.traces.mcap_io import read_trace_mcap, write_trace_mcap
@@ -27,7 +28,7 @@ def write_trace(trace: Trace, path: str | Path) -> None:
     elif path.suffix == ".mcap":
         write_trace_mcap([trace], path)
     else:
-        raise ValueError(f"{path}: output must end in .csv or .mcap")
+        raise BadInputError(f"{path}: output must end in .csv or .mcap")
 
 
 def trace_files(sources: Iterable[str | Path]) -> list[Path]:
@@ -44,12 +45,12 @@ def trace_files(sources: Iterable[str | Path]) -> list[Path]:
         if path.is_dir():
             found = sorted(p for p in path.rglob("*") if p.suffix in SUFFIXES)
             if not found:
-                raise ValueError(f"{path}: folder holds no .csv or .mcap trace")
+                raise BadInputError(f"{path}: folder holds no .csv or .mcap trace")
             files.extend(found)
         elif path.is_file():
             files.append(path)
         else:
-            raise ValueError(f"{path}: no such file or folder")
+            raise BadInputError(f"{path}: no such file or folder")
     return files
 
 
@@ -86,5 +87,5 @@ def read_traces(sources: Iterable[str | Path]) -> list[Trace]:
         elif file.suffix == ".mcap":
             traces.extend(read_trace_mcap(file))
         else:
-            raise ValueError(f"{file}: a trace must be a .csv or .mcap file")
+            raise BadInputError(f"{file}: a trace must be a .csv or .mcap file")
     return traces

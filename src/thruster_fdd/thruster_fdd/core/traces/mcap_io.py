@@ -19,6 +19,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.traces.data import Trace
 
 TELEMETRY_TYPE = "thruster_fdd_msgs/msg/EscTelemetry"
@@ -70,7 +71,7 @@ def _msg_file(type_name: str) -> Path:
         candidate = share / pkg / "msg" / f"{name}.msg"
         if candidate.is_file():
             return candidate
-    raise ValueError(
+    raise BadInputError(
         f"no definition of {type_name} under AMENT_PREFIX_PATH (is the workspace sourced?)"
     )
 
@@ -198,7 +199,7 @@ def read_trace_mcap(path: str | Path) -> list[Trace]:
             cols["current"].append(msg.current_a)
             cols["T"].append(msg.temperature_c)
     if not columns:
-        raise ValueError(f"{path}: no {TELEMETRY_TYPE} messages on /thruster/<id>/esc/telemetry")
+        raise BadInputError(f"{path}: no {TELEMETRY_TYPE} messages on /thruster/<id>/esc/telemetry")
     traces = []
     for tid, cols in sorted(columns.items()):
         arrays = {k: np.asarray(v, dtype=float) for k, v in cols.items()}

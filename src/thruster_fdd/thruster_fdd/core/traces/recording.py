@@ -2,7 +2,7 @@
 
 The recorder node hands every message it receives (topic, type, CDR bytes, time) to a
 :class:`McapRecorder`. Files use rosbag2's MCAP layout (profile ``ros2``, schema encoding
-``ros2msg`` with the definitions of ``core.mcap_io.message_definition``, message encoding
+``ros2msg`` with the definitions of ``core.traces.mcap_io.message_definition``, message encoding
 ``cdr``). The chunk in progress is closed and written through to the OS every
 ``flush_period_s``, so a killed recorder leaves all but the last period readable
 (:func:`read_recovered` reads such a file).

@@ -1,7 +1,7 @@
 """Replay of recordings, without ROS: what to publish, and how to judge what came back.
 
 A recording's telemetry is replayed at the nominal model's sample time (the same decimation as
-``core.residuals``), so every published sample produces exactly one residual and the replayer
+``nominal.residuals``), so every published sample produces exactly one residual and the replayer
 can wait for it: no sample is dropped however fast the replay, and the same bag always gives
 the same diagnoses. Expectations are the diagnoses recorded in the bag (a live run), or the
 ground-truth labels a simulated recording carries in its metadata.
@@ -16,6 +16,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.nominal.residuals import decimate
 from thruster_fdd.core.traces.mcap_io import METADATA_NAME
 
@@ -104,7 +105,7 @@ def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
                 # The same float as the replayer's stamp_ns * 1e-9, so equal stamps compare equal.
                 recorded.setdefault(tid, []).append((ns * 1e-9, decoded.label))
     if not telemetry:
-        raise ValueError(f"{path}: no /thruster/<id>/esc/telemetry messages to replay")
+        raise BadInputError(f"{path}: no /thruster/<id>/esc/telemetry messages to replay")
     bags = []
     for tid, samples in sorted(telemetry.items()):
         samples.sort(key=lambda s: s[0])

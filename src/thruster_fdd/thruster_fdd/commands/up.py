@@ -1,9 +1,10 @@
-"""``thruster-fdd up`` and ``thruster-fdd emulate``: the project's own launcher.
+"""``thruster-fdd up``: the project's own launcher of the whole node set.
 
-``up`` starts, per thruster, the ESC driver node under ``/thruster/<id>`` and, for a simulated
-thruster (the default), a microcontroller emulator on a pseudo-terminal and a command player;
-then it prints a live table until Ctrl-C or ``--duration``, and stops every child cleanly
-(SIGINT first: the drivers send neutral to their bridges). ``emulate`` is one emulator alone.
+Per thruster it starts the ESC driver node under ``/thruster/<id>`` and, for a simulated thruster
+(the default), a microcontroller emulator on a pseudo-terminal (``thruster-fdd emulate``) and a
+command player; both model stages of all thrusters run in one container. It prints a live table
+until Ctrl-C or ``--duration`` and stops every child cleanly (SIGINT first: the drivers send
+neutral to their bridges).
 """
 
 from __future__ import annotations
@@ -23,20 +24,20 @@ from typing import Any
 
 import yaml
 
+from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK
+from thruster_fdd.core.artifact import CARD_FILE
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
-from thruster_fdd.lifetime import child_env, stop_children, stop_with_parent
+from thruster_fdd.lifetime import child_env, node_command, stop_children, stop_with_parent
 
+NAME = "up"
+HELP = "start the node set on simulated (default) or real serial thrusters"
 DESCRIPTION = (
     "Start the node set. Simulated thrusters (the default) each get a microcontroller emulator "
     "serving the bridge protocol on a pseudo-terminal, an ESC driver node reading it with "
     "pyserial, and a command player; real thrusters (port: in --config) get the driver only. "
     "A recorder writes every topic to MCAP. "
     "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent)."
-)
-EMULATE_DESCRIPTION = (
-    "Serve one simulated thruster's serial bridge on a pseudo-terminal, in real time, at the "
-    "given link path (a symlink to the tty), until Ctrl-C. The ESC driver node opens the link "
-    "as it opens a real serial adapter."
 )
 
 
@@ -76,13 +77,13 @@ class ThrusterPlan:
 
     def __post_init__(self) -> None:
         if not self.id.isidentifier():
-            raise ValueError(f"thruster id {self.id!r} must be a ROS name token like t0")
+            raise BadInputError(f"thruster id {self.id!r} must be a ROS name token like t0")
         for name in ("condition", "fault_condition"):
             value = getattr(self, name)
             if value is not None and value not in CLASS_NAMES:
-                raise ValueError(f"thruster {self.id}: unknown {name} {value!r}")
+                raise BadInputError(f"thruster {self.id}: unknown {name} {value!r}")
         if (self.fault_at_s is None) != (self.fault_condition is None):
-            raise ValueError(f"thruster {self.id}: a fault needs both a time and a condition")
+            raise BadInputError(f"thruster {self.id}: a fault needs both a time and a condition")
 
 
 @dataclass(frozen=True)
@@ -125,21 +126,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="folder with nominal/ and classifier/ exported models (default: the workspace's "
         "models/); a node whose model is absent is not started",
     )
-    p.set_defaults(func=run_up)
-
-
-def add_emulate_arguments(p: argparse.ArgumentParser) -> None:
-    """Options of ``thruster-fdd emulate``."""
-    p.add_argument("--link", type=Path, required=True, help="path of the port symlink to create")
-    p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
-    p.add_argument("--condition", default="nominal_15v", choices=CLASS_NAMES)
-    p.add_argument("--voltage", type=float, help="supply voltage, V (default: the condition's)")
-    p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz")
-    p.add_argument("--protocol", default="tfdd", choices=("tfdd", "kiss"))
-    p.add_argument("--seed", type=int, default=0, help="simulator seed")
-    p.add_argument("--fault-at", type=float, metavar="S", help="time of the fault after start, s")
-    p.add_argument("--fault-condition", choices=CLASS_NAMES, help="condition after --fault-at")
-    p.set_defaults(func=run_emulate)
 
 
 def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan, ...]]:
@@ -149,44 +135,36 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
         rate = float(spec.get("rate_hz", args.rate))
         entries = spec.get("thrusters")
         if not isinstance(entries, list) or not entries:
-            raise ValueError(f"{args.config}: needs a non-empty 'thrusters:' list")
+            raise BadInputError(f"{args.config}: needs a non-empty 'thrusters:' list")
         known = set(ThrusterPlan.__dataclass_fields__)
         plans = []
         for entry in entries:
             unknown = set(entry) - known
             if unknown:
-                raise ValueError(f"{args.config}: unknown thruster key(s) {sorted(unknown)}")
+                raise BadInputError(f"{args.config}: unknown thruster key(s) {sorted(unknown)}")
             plans.append(ThrusterPlan(**entry))
     else:
         if args.thrusters < 1:
-            raise ValueError("--thrusters must be >= 1")
+            raise BadInputError("--thrusters must be >= 1")
         rate = args.rate
         plans = [
             ThrusterPlan(id=f"t{i}", preset=args.preset, seed=i, signal=args.signal)
             for i in range(args.thrusters)
         ]
     if not 1.0 <= rate <= 1000.0:
-        raise ValueError(f"telemetry rate must be within 1..1000 Hz, got {rate}")
+        raise BadInputError(f"telemetry rate must be within 1..1000 Hz, got {rate}")
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
-        raise ValueError("thruster ids must be unique")
+        raise BadInputError("thruster ids must be unique")
     for text in args.fault:
         tid, _, rest = text.partition(":")
         condition, _, at = rest.partition("@")
         if tid not in by_id or not at:
-            raise ValueError(f"--fault {text!r}: expected ID:CONDITION@SECONDS with a known id")
+            raise BadInputError(f"--fault {text!r}: expected ID:CONDITION@SECONDS with a known id")
         by_id[tid] = ThrusterPlan(
             **{**by_id[tid].__dict__, "fault_at_s": float(at), "fault_condition": condition}
         )
     return rate, tuple(by_id[p.id] for p in plans)
-
-
-def _node_command(module: str, namespace: str, params: dict[str, object]) -> list[str]:
-    cmd = [sys.executable, "-m", f"thruster_fdd.nodes.{module}", "--ros-args"]
-    cmd += ["-r", f"__ns:={namespace}"]
-    for key, value in params.items():
-        cmd += ["-p", f"{key}:={value}"]
-    return cmd
 
 
 def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[str]]:
@@ -201,10 +179,10 @@ def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[
             emulate += ["--fault-at", str(plan.fault_at_s)]
             emulate += ["--fault-condition", plan.fault_condition]
         out[f"{plan.id}-emulator"] = emulate
-        out[f"{plan.id}-commands"] = _node_command(
+        out[f"{plan.id}-commands"] = node_command(
             "command_player", ns, {"signal": plan.signal, "seed": plan.seed}
         )
-    out[f"{plan.id}-esc_driver"] = _node_command(
+    out[f"{plan.id}-esc_driver"] = node_command(
         "esc_driver",
         ns,
         {"thruster_id": plan.id, "port": port, "protocol": plan.protocol, "rate_hz": rate},
@@ -215,7 +193,7 @@ def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[
 def _stage_commands(ids: list[str], models: Path) -> dict[str, list[str]]:
     """One container hosting every thruster's node of each model stage whose model is exported
     (``nodes/container.py``: torch loaded once; residuals stay in the process)."""
-    stages = [st for st in MODEL_STAGES if (models / st.folder / "model_card.json").is_file()]
+    stages = [st for st in MODEL_STAGES if (models / st.folder / CARD_FILE).is_file()]
     if not stages:
         return {}
     cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", *(st.node for st in stages)]
@@ -225,7 +203,7 @@ def _stage_commands(ids: list[str], models: Path) -> dict[str, list[str]]:
     return {"models": cmd}
 
 
-def run_up(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     """Start the node set, print the live table, stop everything on Ctrl-C or --duration."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -255,9 +233,9 @@ def run_up(args: argparse.Namespace) -> int:
             model_ids = ",".join(
                 f"{stage.folder}={json.loads(card.read_text())['model_id']}"
                 for stage in MODEL_STAGES
-                if (card := models / stage.folder / "model_card.json").is_file()
+                if (card := models / stage.folder / CARD_FILE).is_file()
             )
-            recorder = _node_command(
+            recorder = node_command(
                 "recorder",
                 "/",
                 {
@@ -285,7 +263,7 @@ def run_up(args: argparse.Namespace) -> int:
         stages = [
             f"{st.node} ({models / st.folder})"
             for st in MODEL_STAGES
-            if (models / st.folder / "model_card.json").is_file()
+            if (models / st.folder / CARD_FILE).is_file()
         ]
         print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
         if not args.no_record:
@@ -304,38 +282,11 @@ def run_up(args: argparse.Namespace) -> int:
             dead = [n for n, proc in children.items() if proc.poll() is not None]
             if dead:
                 print(f"thruster-fdd up: {', '.join(dead)} exited; see {run_dir}", file=sys.stderr)
-                return 1
+                return EXIT_FAILED
         print(f"\nfinal:\n{monitor.table()}")
-        return 0
+        return EXIT_OK
     finally:
         stop_children(children, timeout_s=5.0)
         executor.shutdown()
         monitor.destroy_node()
         rclpy.try_shutdown()
-
-
-def run_emulate(args: argparse.Namespace) -> int:
-    """Run one bridge emulator until SIGINT/SIGTERM."""
-    from thruster_fdd.core.bridge.emulator import BridgeEmulator, EmulatorSettings, SetCondition
-    from thruster_fdd.core.sim.config import load_config
-    from thruster_fdd.core.sim.physics import ThrusterSimulator
-
-    simulator = ThrusterSimulator(
-        load_config(args.preset), args.condition, voltage=args.voltage, seed=args.seed
-    )
-    emulator = BridgeEmulator(
-        simulator, args.link, EmulatorSettings(rate_hz=args.rate, protocol=args.protocol)
-    )
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    stop_with_parent()
-    if args.fault_at is not None and args.fault_condition is not None:
-        fault = SetCondition(args.fault_condition)
-        timer = threading.Timer(args.fault_at, emulator.inject, (fault,))
-        timer.daemon = True
-        timer.start()
-    device = emulator.open()
-    print(f"emulating {args.condition} ({args.preset}) on {device} via {args.link}", flush=True)
-    emulator.run(stop)
-    return 0

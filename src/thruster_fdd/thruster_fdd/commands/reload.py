@@ -11,6 +11,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK
+from thruster_fdd.core.errors import BadInputError
+
+NAME = "reload"
+HELP = "load newly exported models into running nodes without a restart"
 DESCRIPTION = (
     "Point the running model nodes of the given thrusters at newly exported models. Each node "
     "checks the model card before switching; a refused model leaves the old one running and "
@@ -24,10 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nominal", type=Path, metavar="DIR", help="new nominal model folder")
     p.add_argument("--classifier", type=Path, metavar="DIR", help="new classifier folder")
     p.add_argument("--timeout", type=float, default=10.0, help="per node, s")
-    p.set_defaults(func=run_reload)
 
 
-def run_reload(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     """Set ``model_dir`` on every named node; returns the exit code."""
     import rclpy
     from rclpy.parameter import Parameter
@@ -36,10 +40,10 @@ def run_reload(args: argparse.Namespace) -> int:
     targets = [("nominal_model", args.nominal), ("classifier", args.classifier)]
     targets = [(node, folder) for node, folder in targets if folder is not None]
     if not targets:
-        raise ValueError("give --nominal DIR and/or --classifier DIR")
+        raise BadInputError("give --nominal DIR and/or --classifier DIR")
     for _, folder in targets:
         if not folder.is_dir():
-            raise ValueError(f"{folder}: no such model folder")
+            raise BadInputError(f"{folder}: no such model folder")
     rclpy.init()
     node = rclpy.create_node("thruster_fdd_reload")
     failures = 0
@@ -68,4 +72,4 @@ def run_reload(args: argparse.Namespace) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-    return 1 if failures else 0
+    return EXIT_FAILED if failures else EXIT_OK

@@ -1,0 +1,62 @@
+"""``thruster-fdd discrepancy``: name the effects the simulator misses against a measured trace."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from thruster_fdd.commands.common import EXIT_OK
+from thruster_fdd.core.errors import BadInputError
+
+NAME = "discrepancy"
+HELP = "name the physical effects the simulator misses against a measured trace"
+DESCRIPTION = (
+    "Calibrate a simulator configuration to a measured trace (free-run simulation error), "
+    "locate where it disagrees, name the missing effects of the effect vocabulary (dead_time, "
+    "deadband, esc_lag, slew_rate_limit, coulomb_friction, viscous_friction, voltage_sag, "
+    "current_limit) and write DIR/report.json, DIR/model.yaml, DIR/report.md and PNG plots "
+    "(docs/discrepancy.md)."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``thruster-fdd discrepancy``."""
+    p.add_argument("--measured", type=Path, required=True, metavar="TRACE",
+                   help="measured trace: trace CSV or MCAP (first thruster)")  # fmt: skip
+    p.add_argument("--start", required=True, metavar="{t100|t200|CONFIG}",
+                   help="starting configuration: preset name or YAML file")  # fmt: skip
+    p.add_argument("--drop", action="append", default=[], metavar="EFFECT",
+                   help="remove this effect from the start (repeatable)")  # fmt: skip
+    p.add_argument("--out", type=Path, required=True, metavar="DIR")
+    p.add_argument("--workers", type=int, default=2, help="processes for candidate re-fits")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the workflow and write the report."""
+    from thruster_fdd.core.discrepancy.report import write_report
+    from thruster_fdd.core.discrepancy.search import run_workflow
+    from thruster_fdd.core.sim.config import load_config
+    from thruster_fdd.core.traces.files import read_traces
+
+    if args.measured.is_dir() or not args.measured.is_file():
+        raise BadInputError(f"--measured {args.measured}: no such trace file")
+    if args.workers < 1:
+        raise BadInputError(f"--workers must be >= 1, got {args.workers}")
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInputError(f"--out {args.out}: exists and is not a folder")
+    source = load_config(args.start)
+    traces = read_traces([args.measured])
+    if len(traces) > 1:
+        print(f"note: {args.measured} holds {len(traces)} traces; using the first", file=sys.stderr)
+    log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    result, data = run_workflow(
+        traces[0], source, args.drop, workers=args.workers, progress=not args.quiet, log=log
+    )
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    write_report(result, data, args.out)
+    named = ", ".join(result.added) or "none"
+    print(f"{result.verdict}: missing {named}; report in {args.out}")
+    return EXIT_OK

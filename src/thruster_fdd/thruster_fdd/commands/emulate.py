@@ -1,0 +1,62 @@
+"""``thruster-fdd emulate``: one simulated thruster's serial bridge on a pseudo-terminal."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+from pathlib import Path
+
+from thruster_fdd.commands.common import EXIT_OK, positive_float
+from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.lifetime import stop_with_parent
+
+NAME = "emulate"
+HELP = "serve a simulated thruster's serial bridge on a pseudo-terminal"
+DESCRIPTION = (
+    "Serve one simulated thruster's serial bridge on a pseudo-terminal, in real time, at the "
+    "given link path (a symlink to the tty), until Ctrl-C. The ESC driver node opens the link "
+    "as it opens a real serial adapter."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``thruster-fdd emulate``."""
+    p.add_argument("--link", type=Path, required=True, help="path of the port symlink to create")
+    p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
+    p.add_argument("--condition", default="nominal_15v", choices=CLASS_NAMES)
+    p.add_argument(
+        "--voltage", type=positive_float, help="supply voltage, V (default: the condition's)"
+    )
+    p.add_argument("--rate", type=positive_float, default=50.0, help="telemetry rate, Hz")
+    p.add_argument("--protocol", default="tfdd", choices=("tfdd", "kiss"))
+    p.add_argument("--seed", type=int, default=0, help="simulator seed")
+    p.add_argument("--fault-at", type=float, metavar="S", help="time of the fault after start, s")
+    p.add_argument("--fault-condition", choices=CLASS_NAMES, help="condition after --fault-at")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run one bridge emulator until SIGINT/SIGTERM."""
+    from thruster_fdd.core.bridge.emulator import BridgeEmulator, EmulatorSettings, SetCondition
+    from thruster_fdd.core.sim.config import load_config
+    from thruster_fdd.core.sim.physics import ThrusterSimulator
+
+    simulator = ThrusterSimulator(
+        load_config(args.preset), args.condition, voltage=args.voltage, seed=args.seed
+    )
+    emulator = BridgeEmulator(
+        simulator, args.link, EmulatorSettings(rate_hz=args.rate, protocol=args.protocol)
+    )
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    stop_with_parent()
+    if args.fault_at is not None and args.fault_condition is not None:
+        fault = SetCondition(args.fault_condition)
+        timer = threading.Timer(args.fault_at, emulator.inject, (fault,))
+        timer.daemon = True
+        timer.start()
+    device = emulator.open()
+    print(f"emulating {args.condition} ({args.preset}) on {device} via {args.link}", flush=True)
+    emulator.run(stop)
+    return EXIT_OK

@@ -1,0 +1,130 @@
+"""``thruster-fdd train nominal|classifier``: train and export a model from traces."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from thruster_fdd.commands.common import EXIT_OK, positive_float
+from thruster_fdd.core.errors import BadInputError
+
+NAME = "train"
+HELP = "train the nominal model or the classifier from traces"
+DESCRIPTION = "Train and export a model from trace CSV / MCAP files or folders of them."
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``thruster-fdd train`` and its two targets."""
+    what = p.add_subparsers(dest="what", metavar="{nominal,classifier}", required=True)
+    n = what.add_parser(
+        "nominal",
+        help="train and export the nominal NARX model",
+        description=(
+            "Train the nominal NARX (inputs command, voltage; outputs rpm, current) on healthy "
+            "traces and export it (model_card.json, weights.npz, model.pt2). The last "
+            "--validation-fraction of every trace gives the card's validation metrics, then the "
+            "model is retrained on everything. Same data and --seed give the same weights "
+            "(docs/nominal_model.md). An existing --out folder is replaced only by a complete, "
+            "checked export."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    n.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
+    n.add_argument("--out", type=Path, default=Path("models/nominal"), metavar="DIR")
+    n.add_argument("--seed", type=int, default=0, help="seed of initialisation and shuffling")
+    n.add_argument(
+        "--mode",
+        choices=["parallel", "series-parallel"],
+        default="parallel",
+        help="NARX configuration the node uses for residuals (and trains for)",
+    )
+    n.add_argument("--validation-fraction", type=float, default=0.2, metavar="F")
+    n.add_argument("--epochs", type=int, help="one-step epochs (default: the mode's default)")
+    n.add_argument(
+        "--finetune-epochs", type=int, help="free-run epochs, parallel (default: the mode's)"
+    )
+    c = what.add_parser(
+        "classifier",
+        help="train and export the fault classifier",
+        description=(
+            "Train the window classifier (MLP on residual and signal features, calibrated, with "
+            "an UNKNOWN answer) on labelled traces: the 'condition' column of a trace CSV or the "
+            "labels of a recording; a trace whose label changes mid-run is used on both sides "
+            "of the change. Residuals come from the exported nominal model --nominal, whose id "
+            "the card records. Exports model_card.json, weights.npz and model.pt2 "
+            "(docs/diagnosis.md)."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    c.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
+    c.add_argument("--nominal", type=Path, default=Path("models/nominal"), metavar="DIR")
+    c.add_argument("--out", type=Path, default=Path("models/classifier"), metavar="DIR")
+    c.add_argument("--seed", type=int, default=0, help="seed of initialisation")
+    c.add_argument("--window", type=positive_float, default=20.0, help="window length, s")
+    c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise BadInputError(f"--out {out}: exists and is not a folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train and export the model ``args.what``."""
+    import torch
+
+    from thruster_fdd.core.traces.files import file_digests, read_traces
+
+    _check_out(args.out)
+    torch.set_num_threads(1)
+    if args.what == "nominal":
+        from thruster_fdd.core.nominal.training import default_config, train_nominal
+
+        if not 0.0 <= args.validation_fraction < 1.0:
+            raise BadInputError(
+                f"--validation-fraction must be in [0, 1), got {args.validation_fraction}"
+            )
+        changes = {
+            k: v for k, v in (("epochs", args.epochs), ("finetune_epochs", args.finetune_epochs))
+            if v is not None
+        }  # fmt: skip
+        if any(v < 0 for v in changes.values()):
+            raise BadInputError("--epochs and --finetune-epochs must be >= 0")
+        traces = read_traces(args.data)
+        card = train_nominal(
+            traces,
+            args.out,
+            seed=args.seed,
+            config=default_config(args.mode, **changes),
+            validation_fraction=args.validation_fraction,
+            progress=True,
+            extra={"training_files": file_digests(args.data)},
+        )
+        m = card.training_metrics.get("validation", card.training_metrics["train"])
+        print(
+            f"exported {card.model_id} ({card.mode}) to {args.out}: {len(traces)} trace(s); "
+            f"rpm r2 {m['rpm_r2']:.4f}, current r2 {m['current_r2']:.4f}"
+        )
+        return EXIT_OK
+    from thruster_fdd.core.diagnosis.training import ClassifierConfig, train_classifier
+
+    if args.epochs < 1:
+        raise BadInputError(f"--epochs must be >= 1, got {args.epochs}")
+    traces = read_traces(args.data)
+    config = ClassifierConfig(window_s=args.window, epochs=args.epochs)
+    card = train_classifier(
+        traces,
+        args.nominal,
+        args.out,
+        seed=args.seed,
+        config=config,
+        progress=True,
+        extra={"training_files": file_digests(args.data)},
+    )
+    m = card.training_metrics["heldout"]
+    print(
+        f"exported {card.model_id} to {args.out}: {len(traces)} trace(s), nominal model "
+        f"{card.nominal_model_id}; held-out windows: balanced accuracy "
+        f"{m['balanced_accuracy']:.4f}, ECE {m['ece']:.4f}"
+    )
+    return EXIT_OK
