@@ -24,6 +24,8 @@ const WDRF = 0x08;
 const DDRD = 0x2a;
 const SERVO_PIN = 1; // PB1
 const ESC_PIN = 2; // PD2
+const SMCR = 0x53;
+const SLEEP = 0x9588;
 const RJMP_SELF = 0xcfff; // rjmp .-2: a loop that never ends
 
 // Runner -> parent.
@@ -157,8 +159,9 @@ function rebuild() {
   const cause = resetCause;
   resetCause = 0;
   hung = false;
+  asleep = false;
   m = createMachine(cause);
-  lastLoop = -1;
+  passStart = -1;
   inflight = null;
   esc.onReset();
   message(MSG_RESET, Buffer.concat([f64(seconds(vnow())), Buffer.from([cause])]));
@@ -321,12 +324,18 @@ const esc = new Esc(opts.esc);
 
 // ---- main loop timing ----------------------------------------------------------------------
 
-let lastLoop = -1;
+// A pass runs from the loop function's entry to the next SLEEP (or the next entry when the loop
+// goes round without sleeping), interrupts included.
+let passStart = -1;
 let loopMax = 0;
 let loops = 0;
+function endPass(cycles) {
+  if (passStart >= 0) loopMax = Math.max(loopMax, cycles - passStart);
+  passStart = -1;
+}
 function onLoopEntry(cycles) {
-  if (lastLoop >= 0) loopMax = Math.max(loopMax, cycles - lastLoop);
-  lastLoop = cycles;
+  endPass(cycles);
+  passStart = cycles;
   loops += 1;
 }
 
@@ -348,14 +357,32 @@ function periodic() {
   }
 }
 
+// avr8js executes SLEEP as a no-op; a sleeping AVR is halted until an interrupt is taken, so the
+// runner jumps from one clock event (timer tick, serial byte, ESC bit) to the next instead.
+let asleep = false;
 function runUntil(end) {
   while (vnow() < end) {
     const { cpu } = m;
     const limit = Math.min(end, vnow() + CHUNK_CYCLES) - vbase;
     while (cpu.cycles < limit && !resetCause) {
+      if (asleep) {
+        const pc = cpu.pc;
+        const next = cpu.nextClockEvent;
+        cpu.cycles = next && next.cycles < limit ? Math.max(next.cycles, cpu.cycles) : limit;
+        cpu.tick();
+        asleep = cpu.pc === pc;
+        continue;
+      }
+      const sleeping = cpu.progMem[cpu.pc] === SLEEP && cpu.data[SMCR] & 1;
       avrInstruction(cpu);
+      const pc = cpu.pc;
       cpu.tick();
-      if (cpu.pc === loopPc && !hung) onLoopEntry(cpu.cycles);
+      if (sleeping) {
+        endPass(cpu.cycles);
+        asleep = cpu.pc === pc;
+      } else if (cpu.pc === loopPc && !hung) {
+        onLoopEntry(cpu.cycles);
+      }
     }
     if (resetCause) rebuild();
     periodic();

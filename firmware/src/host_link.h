@@ -45,6 +45,12 @@ extern volatile uint8_t host_rx_ring[HOST_RX_RING];
 extern volatile uint8_t host_rx_head;
 extern volatile uint8_t host_rx_tail;
 
+/* Received bytes wait to be decoded (host_link_poll takes a bounded number per call). */
+static inline bool host_link_rx_pending(void)
+{
+    return host_rx_head != host_rx_tail;
+}
+
 /* Move a byte waiting in UDR0 into the receive ring; a full ring drops it (its frame then fails
  * the CRC). Inline, so that an interrupt that blocks for most of a character time (the KISS bit
  * sampler) can call it without saving every register on entry. Call with interrupts off. */

@@ -8,6 +8,7 @@
 #include <avr/eeprom.h>
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include <avr/sleep.h>
 #include <avr/wdt.h>
 #include <stdbool.h>
 #include <stdint.h>
@@ -127,7 +128,8 @@ static void send_telemetry(uint32_t now_us, bool timed_out)
     host_link_send_telemetry(&t);
 }
 
-/* One pass of the main loop (kept out of line: the co-simulation times the loop at its entry). */
+/* One pass of the main loop (kept out of line: the co-simulation times each pass from its entry
+ * to the sleep that follows). */
 static void __attribute__((noinline)) bridge_step(void)
 {
     uint32_t now = micros();
@@ -171,12 +173,41 @@ static void __attribute__((noinline)) bridge_step(void)
     }
 }
 
+/* Timer0 wakes the sleeping loop every 1.024 ms (CTC, clk/1024, 16 counts), so schedules are
+ * kept to about a millisecond while the CPU idles between interrupts. */
+static void wake_tick_init(void)
+{
+    OCR0A = 15u;
+    TCCR0A = _BV(WGM01);
+    TCCR0B = _BV(CS02) | _BV(CS00);
+    TIMSK0 = _BV(OCIE0A);
+}
+
+EMPTY_INTERRUPT(TIMER0_COMPA_vect);
+
+/* Idle until the next interrupt; interrupts stay off between the decision and the sleep
+ * instruction, so a wake-up cannot slip in between and be missed. */
+static void idle(void)
+{
+    cli();
+    if (host_link_rx_pending()) {
+        sei();
+        return;
+    }
+    sleep_enable();
+    sei();
+    sleep_cpu();
+    sleep_disable();
+}
+
 int main(void)
 {
     struct rates rates = load_rates();
     servo_clock_init(rates.servo_hz);
     host_link_init();
     esc_init();
+    wake_tick_init();
+    set_sleep_mode(SLEEP_MODE_IDLE);
     sei();
     uint32_t now = micros();
     bridge = (struct bridge){
@@ -195,5 +226,6 @@ int main(void)
     for (;;) {
         wdt_reset();
         bridge_step();
+        idle();
     }
 }
