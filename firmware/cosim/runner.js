@@ -98,12 +98,17 @@ function u32(v) { const b = Buffer.alloc(4); b.writeUInt32LE(v >>> 0); return b;
 
 let txBytes = [];
 let txStart = 0;
+let txLast = 0;
 let pulses = [];
-function flush() {
+function flushTx() {
   if (txBytes.length) {
     message(MSG_UART_TX, Buffer.concat([f64(txStart), Buffer.from(txBytes)]));
     txBytes = [];
   }
+}
+function flush() {
+  // A burst still being sent stays for the next flush: a message is one whole burst.
+  if (m && vnow() - txLast > 2 * m.usart.cyclesPerChar) flushTx();
   if (pulses.length) {
     const b = Buffer.alloc(12 * pulses.length);
     pulses.forEach(([t, w], i) => { b.writeDoubleLE(t, 12 * i); b.writeFloatLE(w, 12 * i + 8); });
@@ -144,7 +149,11 @@ function createMachine(cause) {
   };
   cpu.data[MCUSR] = cause;
   machine.usart.onByteTransmit = (b) => {
-    if (!txBytes.length) txStart = seconds(vnow());
+    // One message per burst, stamped with its first byte: frames are sent back to back.
+    const now = vnow();
+    if (txBytes.length && now - txLast > 2 * machine.usart.cyclesPerChar) flushTx();
+    if (!txBytes.length) txStart = seconds(now);
+    txLast = now;
     txBytes.push(b);
   };
   machine.usart.onRxComplete = onHostByteReceived;
@@ -408,6 +417,7 @@ function stats() {
 
 function finish() {
   stats();
+  flushTx();
   flush();
   process.stdout.end(() => process.exit(0));
 }

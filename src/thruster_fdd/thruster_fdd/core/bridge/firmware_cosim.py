@@ -472,10 +472,11 @@ class FirmwareBridge:
         self._proc.stdin.flush()
 
     def _drain_runner(self) -> None:
-        """Read what the stopped runner left in its pipe (its last statistics)."""
+        """Take the stopped runner's last statistics from its pipe."""
         self._inbox += self._proc.stdout.read()
         for kind, payload in _parse(self._inbox):
-            self._handle(kind, payload)
+            if kind == _MSG_STATS:
+                self.stats = _stats(payload)
 
     def _to_bridge(self, data: bytes, *, noise: bool) -> None:
         chunk = HostChunk(self._next_chunk_id, data, noise)
