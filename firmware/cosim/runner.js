@@ -137,17 +137,19 @@ function createMachine(cause) {
   const resetPc = cpu.reset.bind(cpu);
   cpu.reset = () => { resetPc(); resetCause = WDRF; };
   const clock = new AVRClock(cpu, FREQ_HZ, clockConfig);
+  const timerConfigs = [timer0Config, timer1Config, timer2Config];
   const machine = {
     cpu,
     portB: new AVRIOPort(cpu, portBConfig),
     portC: new AVRIOPort(cpu, portCConfig),
     portD: new AVRIOPort(cpu, portDConfig),
-    timers: [timer0Config, timer1Config, timer2Config].map((c) => new AVRTimer(cpu, c)),
+    timers: timerConfigs.map((c) => new AVRTimer(cpu, c)),
     usart: new AVRUSART(cpu, usart0Config, FREQ_HZ),
     eeprom: new AVREEPROM(cpu, eeprom),
     watchdog: new AVRWatchdog(cpu, watchdogConfig, clock),
   };
   cpu.data[MCUSR] = cause;
+  countTimersLazily(cpu, machine.timers, timerConfigs);
   machine.usart.onByteTransmit = (b) => {
     // One message per burst, stamped with its first byte: frames are sent back to back.
     const now = vnow();
@@ -161,6 +163,45 @@ function createMachine(cause) {
   machine.portD.addListener((value) => esc.onAvrPin(value));
   machine.portD.setPin(ESC_PIN, true); // pull-up: the idle wire is high
   return machine;
+}
+
+// avr8js advances a timer with a clock event at every prescaled tick (2 million a second for
+// Timer1 at clk/8). Its count function accepts any number of elapsed ticks, so the event is
+// scheduled instead at the next tick where something can be seen: a compare match or the
+// wrap at TOP (flags, interrupts, output pins). Reads of TCNT count up to the present as before;
+// writes that move those ticks (OCRx, ICR, TCCRxA) recount and reschedule at once. Modes other
+// than normal, CTC and fast PWM keep the event per tick.
+const LAZY_MODES = new Set([0, 2, 3]); // avr8js TimerMode: Normal, CTC, FastPWM
+function ticksToEvent(timer) {
+  const t = timer.tcnt;
+  const top = timer.TOP;
+  if (!LAZY_MODES.has(timer.timerMode) || timer.tcntUpdated || t > top) return 1;
+  let ticks = top - t + 1;
+  for (const ocr of [timer.ocrA, timer.ocrB, timer.ocrC]) {
+    if (ocr > t && ocr - t < ticks) ticks = ocr - t;
+  }
+  return ticks;
+}
+function countTimersLazily(cpu, timers, configs) {
+  const byCount = new Map(timers.map((timer) => [timer.count, timer]));
+  const addClockEvent = cpu.addClockEvent.bind(cpu);
+  cpu.addClockEvent = (callback, cycles) => {
+    const timer = byCount.get(callback);
+    // A positive delay is count()'s "next tick"; 0 is a request to count now.
+    if (timer && cycles > 0) cycles += (ticksToEvent(timer) - 1) * timer.divider;
+    return addClockEvent(callback, cycles);
+  };
+  timers.forEach((timer, i) => {
+    const c = configs[i];
+    for (const addr of [c.OCRA, c.OCRB, c.OCRC, c.ICR, c.TCCRA].filter(Boolean)) {
+      const hook = cpu.writeHooks[addr];
+      cpu.writeHooks[addr] = (...args) => {
+        const handled = hook(...args);
+        cpu.updateClockEvent(timer.count, 0);
+        return handled;
+      };
+    }
+  });
 }
 
 function rebuild() {

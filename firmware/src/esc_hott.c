@@ -13,6 +13,7 @@
 #include <util/atomic.h>
 
 #include "esc.h"
+#include "wake.h"
 
 #define BIT_TICKS 104u
 #define FRAME_LEN 45u
@@ -133,6 +134,9 @@ static void receive_tick(void)
     if (rx_count < FRAME_LEN) {
         rx_buf[rx_count] = shift;
         rx_count = (uint8_t)(rx_count + 1u);
+        if (rx_count == FRAME_LEN) {
+            wake_main_loop();
+        }
     }
     listen_for_start_bit();
 }

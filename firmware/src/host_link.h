@@ -6,6 +6,8 @@
 #include <stdbool.h>
 #include <stdint.h>
 
+#include "wake.h"
+
 #define STATUS_ESC_TIMEOUT 0x01u
 #define STATUS_ADC_FAULT 0x02u
 #define STATUS_RPM_FAULT 0x04u
@@ -65,6 +67,7 @@ static inline void host_link_service_rx(void)
         host_rx_ring[host_rx_head] = byte;
         host_rx_head = next;
     }
+    wake_main_loop();
 }
 
 #endif

@@ -17,6 +17,7 @@
 #include "esc.h"
 #include "host_link.h"
 #include "servo_clock.h"
+#include "wake.h"
 
 /* Rates stored in EEPROM at address 0 (all little-endian): 'T', 'B', telemetry rate in Hz (u8),
  * servo frame rate in Hz (u16), and a check byte, the complement of the sum of the five before
@@ -45,6 +46,7 @@ struct bridge {
 };
 
 static struct bridge bridge;
+volatile uint8_t bridge_wake;
 
 /* The watchdog stays enabled across a watchdog reset: switch it off before anything else. */
 void early_watchdog_off(void) __attribute__((naked, used, section(".init3")));
@@ -183,21 +185,25 @@ static void wake_tick_init(void)
     TIMSK0 = _BV(OCIE0A);
 }
 
-EMPTY_INTERRUPT(TIMER0_COMPA_vect);
+ISR(TIMER0_COMPA_vect)
+{
+    wake_main_loop();
+}
 
-/* Idle until the next interrupt; interrupts stay off between the decision and the sleep
- * instruction, so a wake-up cannot slip in between and be missed. */
+/* Sleep until an interrupt brings work (wake.h). Interrupts stay off between the check and the
+ * sleep instruction (SEI takes effect after the next one), so no wake-up is missed. */
 static void idle(void)
 {
     cli();
-    if (host_link_rx_pending()) {
+    while (!bridge_wake && !host_link_rx_pending()) {
+        sleep_enable();
         sei();
-        return;
+        sleep_cpu();
+        sleep_disable();
+        cli();
     }
-    sleep_enable();
+    bridge_wake = 0;
     sei();
-    sleep_cpu();
-    sleep_disable();
 }
 
 int main(void)
