@@ -36,8 +36,11 @@ DESCRIPTION = (
 EMULATE_DESCRIPTION = (
     "Serve one simulated thruster's serial bridge on a pseudo-terminal, in real time, at the "
     "given link path (a symlink to the tty), until Ctrl-C. The ESC driver node opens the link "
-    "as it opens a real serial adapter."
+    "as it opens a real serial adapter. --bridge firmware runs the bridge's real firmware "
+    "(firmware/) on an emulated ATmega328P instead of the Python emulator."
 )
+BRIDGES = ("python", "firmware")
+"""What serves a simulated thruster's bridge: the Python emulator or the firmware co-simulation."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +65,9 @@ class ThrusterPlan:
         Command signal of the command player (simulated thrusters).
     fault_at_s, fault_condition : float or None, str or None
         Fault injected into the simulated thruster at this time after start.
+    bridge : str
+        What serves a simulated thruster's bridge: ``python`` (the emulator) or ``firmware``
+        (the bridge firmware on an emulated ATmega328P, HoTT ESC telemetry).
     """
 
     id: str
@@ -73,6 +79,7 @@ class ThrusterPlan:
     signal: str = "mission"
     fault_at_s: float | None = None
     fault_condition: str | None = None
+    bridge: str = "python"
 
     def __post_init__(self) -> None:
         if not self.id.isidentifier():
@@ -83,6 +90,13 @@ class ThrusterPlan:
                 raise ValueError(f"thruster {self.id}: unknown {name} {value!r}")
         if (self.fault_at_s is None) != (self.fault_condition is None):
             raise ValueError(f"thruster {self.id}: a fault needs both a time and a condition")
+        if self.bridge not in BRIDGES:
+            raise ValueError(f"thruster {self.id}: bridge must be one of {BRIDGES}")
+        if self.bridge == "firmware" and (self.port is not None or self.protocol != "tfdd"):
+            raise ValueError(
+                f"thruster {self.id}: bridge firmware is for simulated thrusters (no port) and "
+                "speaks tfdd"
+            )
 
 
 @dataclass(frozen=True)
@@ -103,6 +117,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
     p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz (10-100)")
     p.add_argument("--signal", default="mission", help="command signal of simulated thrusters")
+    p.add_argument(
+        "--bridge",
+        choices=BRIDGES,
+        default="python",
+        help="what serves simulated thrusters' bridges (a config entry's bridge: key wins): the "
+        "Python emulator or the bridge firmware on an emulated ATmega328P",
+    )
     p.add_argument(
         "--fault",
         action="append",
@@ -136,6 +157,18 @@ def add_emulate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voltage", type=float, help="supply voltage, V (default: the condition's)")
     p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz")
     p.add_argument("--protocol", default="tfdd", choices=("tfdd", "kiss"))
+    p.add_argument(
+        "--bridge",
+        choices=BRIDGES,
+        default="python",
+        help="the Python emulator, or the bridge firmware on an emulated ATmega328P (tfdd only)",
+    )
+    p.add_argument(
+        "--esc-telemetry",
+        choices=("hott", "kiss"),
+        default="hott",
+        help="with --bridge firmware: the ESC telemetry the firmware reads (its build variant)",
+    )
     p.add_argument("--seed", type=int, default=0, help="simulator seed")
     p.add_argument("--fault-at", type=float, metavar="S", help="time of the fault after start, s")
     p.add_argument("--fault-condition", choices=CLASS_NAMES, help="condition after --fault-at")
@@ -156,17 +189,23 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
             unknown = set(entry) - known
             if unknown:
                 raise ValueError(f"{args.config}: unknown thruster key(s) {sorted(unknown)}")
-            plans.append(ThrusterPlan(**entry))
+            defaults = {} if "port" in entry else {"bridge": args.bridge}
+            plans.append(ThrusterPlan(**(defaults | entry)))
     else:
         if args.thrusters < 1:
             raise ValueError("--thrusters must be >= 1")
         rate = args.rate
         plans = [
-            ThrusterPlan(id=f"t{i}", preset=args.preset, seed=i, signal=args.signal)
+            ThrusterPlan(
+                id=f"t{i}", preset=args.preset, seed=i, signal=args.signal, bridge=args.bridge
+            )
             for i in range(args.thrusters)
         ]
     if not 1.0 <= rate <= 1000.0:
         raise ValueError(f"telemetry rate must be within 1..1000 Hz, got {rate}")
+    firmware = any(p.bridge == "firmware" for p in plans)
+    if firmware and not (rate.is_integer() and 10 <= rate <= 100):
+        raise ValueError(f"the firmware bridge sends 10..100 whole Hz of telemetry, got {rate:g}")
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise ValueError("thruster ids must be unique")
@@ -197,6 +236,7 @@ def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[
         emulate = [sys.executable, "-m", "thruster_fdd.cli", "emulate", "--link", port]
         emulate += ["--preset", plan.preset, "--condition", plan.condition]
         emulate += ["--rate", str(rate), "--seed", str(plan.seed), "--protocol", plan.protocol]
+        emulate += ["--bridge", plan.bridge]
         if plan.fault_at_s is not None and plan.fault_condition is not None:
             emulate += ["--fault-at", str(plan.fault_at_s)]
             emulate += ["--fault-condition", plan.fault_condition]
@@ -235,6 +275,11 @@ def run_up(args: argparse.Namespace) -> int:
     from thruster_fdd.nodes.monitor import Monitor
 
     rate, plans = plan_from_args(args)
+    if any(p.bridge == "firmware" for p in plans):
+        from thruster_fdd.core.bridge.firmware_build import ensure_built
+
+        # Once here rather than in every emulator at once.
+        ensure_built("hott")
     models = (args.models or default_models_dir()).resolve()
     run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
     stop = threading.Event()
@@ -315,26 +360,56 @@ def run_up(args: argparse.Namespace) -> int:
 
 
 def run_emulate(args: argparse.Namespace) -> int:
-    """Run one bridge emulator until SIGINT/SIGTERM."""
+    """Run one bridge emulator (or the firmware co-simulation) until SIGINT/SIGTERM."""
     from thruster_fdd.core.emulator import BridgeEmulator, EmulatorSettings, SetCondition
     from thruster_fdd.core.physics import ThrusterSimulator, load_config
 
     simulator = ThrusterSimulator(
         load_config(args.preset), args.condition, voltage=args.voltage, seed=args.seed
     )
-    emulator = BridgeEmulator(
-        simulator, args.link, EmulatorSettings(rate_hz=args.rate, protocol=args.protocol)
-    )
+    if args.bridge == "firmware":
+        emulator, fault_type, served_by = _firmware_bridge(args, simulator)
+    else:
+        emulator = BridgeEmulator(
+            simulator, args.link, EmulatorSettings(rate_hz=args.rate, protocol=args.protocol)
+        )
+        fault_type, served_by = SetCondition, ""
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     stop_with_parent()
     if args.fault_at is not None and args.fault_condition is not None:
-        fault = SetCondition(args.fault_condition)
+        fault = fault_type(args.fault_condition)
         timer = threading.Timer(args.fault_at, emulator.inject, (fault,))
         timer.daemon = True
         timer.start()
     device = emulator.open()
-    print(f"emulating {args.condition} ({args.preset}) on {device} via {args.link}", flush=True)
+    print(
+        f"emulating {args.condition} ({args.preset}) on {device} via {args.link}{served_by}",
+        flush=True,
+    )
     emulator.run(stop)
+    if args.bridge == "firmware":
+        s = emulator.stats
+        print(
+            f"co-simulation: {s.virtual_s:.1f} s simulated in {s.wall_s:.1f} s ({s.speed:.2f}x "
+            f"real time; simulating took {s.busy_s:.1f} s: {s.headroom:.1f}x), {s.slips} slips",
+            flush=True,
+        )
     return 0
+
+
+def _firmware_bridge(args: argparse.Namespace, simulator: Any) -> tuple[Any, type, str]:
+    """``emulate --bridge firmware``: the co-simulated bridge, its fault type and a banner."""
+    from thruster_fdd.core.bridge import firmware_cosim as cosim
+    from thruster_fdd.core.bridge.firmware_build import ensure_built
+
+    if args.protocol != "tfdd":
+        raise ValueError("the firmware bridge speaks tfdd to the host (--protocol kiss is not it)")
+    if not float(args.rate).is_integer():
+        raise ValueError(f"the firmware bridge sends whole Hz of telemetry, got --rate {args.rate}")
+    settings = cosim.CosimSettings(telemetry_hz=int(args.rate))
+    image = ensure_built(args.esc_telemetry)
+    bridge = cosim.FirmwareBridge(simulator, args.link, image, settings, seed=args.seed)
+    served_by = f": bridge firmware {image.hex_path.name} on an emulated ATmega328P"
+    return bridge, cosim.SetCondition, served_by
