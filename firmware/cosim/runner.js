@@ -17,6 +17,8 @@ const {
 
 const FREQ_HZ = 16e6;
 const FLASH_WORDS = 16384;
+const SRAM_BYTES = 2048;
+const RAMEND = 0x8ff;
 const EEPROM_BYTES = 1024;
 const MCUSR = 0x54;
 const PORF = 0x01;
@@ -35,7 +37,9 @@ const MSG_TICK = 0x03; // f64 t, f32 last pulse width (µs, NaN if none), f32 it
 const MSG_RX_DONE = 0x04; // u32 chunk id, f64 t its last byte was received, u8 dropped
 const MSG_ESC_SENT = 0x05; // u32 frame id, f64 t the ESC started sending it
 const MSG_RESET = 0x06; // f64 t, u8 MCUSR cause bits
-const MSG_STATS = 0x07; // f64 t, f64 wall s, f64 busy s, u32 loop max cycles, u32 loops, u32 slips
+// MSG_STATS: f64 t, f64 wall s, f64 busy s, u32 loop max cycles, u32 loops, u32 slips,
+// u32 deepest stack in bytes (0 unless trackStack)
+const MSG_STATS = 0x07;
 const MSG_POLL = 0x08; // f64 t, request bytes the ESC received
 // Parent -> runner.
 const CMD_UART_RX = 0x11; // u32 chunk id, f64 not before t (s), bytes for the AVR's USART0
@@ -50,7 +54,7 @@ const CMD_STOP = 0x16; // send the last stats and exit
 //   loop's step function (from the ELF); eeprom: byte array written at EEPROM address 0;
 //   realtime: pace to the wall clock (else as fast as possible); durationS: stop after this much
 //   virtual time (0: never); tickS: period of the physics ticks; hott: {firstByteUs, byteUs};
-//   kissPeriodS: period of the KISS ESC's frames.
+//   kissPeriodS: period of the KISS ESC's frames; trackStack: record the deepest stack (slower).
 const opts = Object.assign(
   {
     esc: 'hott',
@@ -60,6 +64,7 @@ const opts = Object.assign(
     tickS: 0.01,
     hott: { firstByteUs: 4000, byteUs: 1200 },
     kissPeriodS: 0.02,
+    trackStack: false,
   },
   JSON.parse(process.argv[2]),
 );
@@ -133,7 +138,7 @@ function seconds(cycles) { return cycles / FREQ_HZ; }
 // A reset in avr8js only rewinds the PC; the real chip also resets every peripheral, so a new
 // machine is built instead (flash, EEPROM and the outside world are kept).
 function createMachine(cause) {
-  const cpu = new CPU(new Uint16Array(program));
+  const cpu = new CPU(new Uint16Array(program), SRAM_BYTES);
   const resetPc = cpu.reset.bind(cpu);
   cpu.reset = () => { resetPc(); resetCause = WDRF; };
   const clock = new AVRClock(cpu, FREQ_HZ, clockConfig);
@@ -379,6 +384,7 @@ const esc = new Esc(opts.esc);
 let passStart = -1;
 let loopMax = 0;
 let loops = 0;
+let minSp = RAMEND;
 function endPass(cycles) {
   if (passStart >= 0) loopMax = Math.max(loopMax, cycles - passStart);
   passStart = -1;
@@ -425,6 +431,7 @@ function runUntil(end) {
       }
       const sleeping = cpu.progMem[cpu.pc] === SLEEP && cpu.data[SMCR] & 1;
       avrInstruction(cpu);
+      if (opts.trackStack && cpu.SP < minSp) minSp = cpu.SP;
       const pc = cpu.pc;
       cpu.tick();
       if (sleeping) {
@@ -443,16 +450,18 @@ let wall0 = 0;
 let v0 = 0;
 let busyMs = 0;
 let slips = 0;
+let lagging = false;
 let lastStats = 0;
 let stopping = false;
 function stats() {
-  const b = Buffer.alloc(36);
+  const b = Buffer.alloc(40);
   b.writeDoubleLE(seconds(vnow()), 0);
   b.writeDoubleLE((performance.now() - wall0) / 1000, 8);
   b.writeDoubleLE(busyMs / 1000, 16);
   b.writeUInt32LE(loopMax, 24);
   b.writeUInt32LE(loops >>> 0, 28);
   b.writeUInt32LE(slips, 32);
+  b.writeUInt32LE(opts.trackStack ? RAMEND - minSp : 0, 36);
   message(MSG_STATS, b);
 }
 
@@ -471,10 +480,14 @@ function slice() {
   if (opts.realtime) {
     let target = v0 + ((t - wall0) * FREQ_HZ) / 1000;
     if (target - vnow() > MAX_LAG_CYCLES) {
-      // The host cannot keep up: give up the backlog rather than run in a burst.
-      slips += 1;
+      // The host cannot keep up: the backlog beyond 0.2 s is given up (virtual time falls
+      // behind the wall clock) rather than run in one burst. One slip per such episode.
+      if (!lagging) slips += 1;
+      lagging = true;
       v0 -= target - vnow() - MAX_LAG_CYCLES;
       target = vnow() + MAX_LAG_CYCLES;
+    } else if (target - vnow() < SLICE_CYCLES) {
+      lagging = false;
     }
     behind = target > end;
     end = Math.min(end, target);

@@ -50,13 +50,18 @@ def test_ensure_built_reuses_a_build_of_the_same_sources(firmware_images: dict) 
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
-def test_the_main_loop_stays_short_under_load(firmware_images: dict, variant: str) -> None:
-    stats = measure_loop_time(firmware_images[variant], seconds=2.0)
+def test_the_main_loop_stays_short_and_the_stack_small_under_load(
+    firmware_images: dict, variant: str
+) -> None:
+    image = firmware_images[variant]
+    stats = measure_loop_time(image, seconds=2.0)
     print(
-        f"{variant}: worst loop pass {stats.loop_max_us:.0f} µs over {stats.loops} passes; "
-        f"unpaced {stats.speed:.2f}x real time"
+        f"{variant}: worst loop pass {stats.loop_max_us:.0f} µs over {stats.loops} passes, "
+        f"deepest stack {stats.stack_bytes} B; unpaced {stats.speed:.2f}x real time"
     )
     assert stats.virtual_s == pytest.approx(2.0, abs=0.01)
     assert stats.loops > 2000, "the loop should pass at least once per 1 ms wake tick"
     # Far inside the 60 ms AVR watchdog and the 10 ms telemetry period at 100 Hz.
     assert 0 < stats.loop_max_us < 2000
+    assert stats.stack_bytes > 0
+    assert image.ram_bytes + stats.stack_bytes <= RAM_BYTES // 2

@@ -258,11 +258,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         problems += image.limit_problems()
         if args.loop_seconds > 0:
             timing = measure_loop_time(image, args.loop_seconds)
+            ram = image.ram_bytes + timing.stack_bytes
             print(
-                f"{image.hex_path.name}: worst main-loop pass {timing.loop_max_us:.0f} µs over "
-                f"{timing.loops} passes in {timing.virtual_s:.1f} s simulated under load "
-                f"(unpaced co-simulation: {timing.speed:.2f}x real time)"
+                f"{image.hex_path.name}: under load for {timing.virtual_s:.1f} s simulated: worst "
+                f"main-loop pass {timing.loop_max_us:.0f} µs ({timing.loops} passes), deepest "
+                f"stack {timing.stack_bytes} B (RAM with stack {ram} B, {ram / RAM_BYTES:.1%}); "
+                f"unpaced co-simulation {timing.speed:.2f}x real time"
             )
+            if ram > LIMIT_FRACTION * RAM_BYTES:
+                problems.append(f"{image.variant}: RAM with stack {ram} B over the limit")
     for problem in problems:
         print(f"firmware build: over the limit: {problem}", file=sys.stderr)
     return 1 if problems else 0

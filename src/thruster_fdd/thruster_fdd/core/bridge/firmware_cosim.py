@@ -138,7 +138,10 @@ class CosimStats:
     loops : int
         Main-loop passes.
     slips : int
-        Times the runner fell more than 0.2 s behind the wall clock and skipped ahead.
+        Episodes in which the runner fell more than 0.2 s behind the wall clock and gave up
+        the rest of its backlog (virtual time then lags the wall clock: see ``speed``).
+    stack_bytes : int
+        Deepest stack seen, bytes below RAMEND (0 unless the run tracked it).
     """
 
     virtual_s: float = 0.0
@@ -147,6 +150,7 @@ class CosimStats:
     loop_max_cycles: int = 0
     loops: int = 0
     slips: int = 0
+    stack_bytes: int = 0
 
     @property
     def speed(self) -> float:
@@ -307,8 +311,7 @@ def _parse(buffer: bytearray) -> list[tuple[int, bytes]]:
 
 
 def _stats(payload: bytes) -> CosimStats:
-    virtual_s, wall_s, busy_s, loop_max, loops, slips = struct.unpack("<dddIII", payload)
-    return CosimStats(virtual_s, wall_s, busy_s, loop_max, loops, slips)
+    return CosimStats(*struct.unpack("<dddIIII", payload))
 
 
 class FirmwareBridge:
@@ -615,9 +618,15 @@ def measure_loop_time(image: FirmwareImage, seconds: float = 3.0, *, seed: int =
     Returns
     -------
     CosimStats
-        ``loop_max_us`` is the slowest main-loop pass, interrupts included.
+        ``loop_max_us`` is the slowest main-loop pass, interrupts included; ``stack_bytes`` the
+        deepest stack.
     """
-    options = {"eeprom": list(eeprom_config(100, 400)), "realtime": False, "durationS": seconds}
+    options = {
+        "eeprom": list(eeprom_config(100, 400)),
+        "realtime": False,
+        "durationS": seconds,
+        "trackStack": True,
+    }
     rng = np.random.default_rng(seed)
     reading = hott.HottEscFrame(15.0, 3.2, 2500.0, 25.0, 120.0)
     if image.variant == "hott":
