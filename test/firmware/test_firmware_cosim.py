@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import serial
 
@@ -264,6 +265,44 @@ def test_noise_and_damaged_frames_on_the_host_link_are_not_commands(rig: Rig) ->
     widths = {round(p.width_us) for p in rig.pulses(since=start)}
     assert widths <= {1600, 1620}, widths
     assert all(abs(p.width_us - 1620) <= 0.5 for p in rig.pulses(since=arrived + SERVO_PERIOD_S))
+
+
+def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig) -> None:
+    """Valid commands behind truncated, corrupted, noisy and falsely synced bytes: the pulses
+    the firmware applies are the commands the host's FrameDecoder finds in the same stream."""
+    rng = np.random.default_rng(3)
+    rig.target = None
+    time.sleep(0.1)
+    start = rig.bridge.virtual_time
+    before = rig.pulses()[-1].width_us
+    stream = b""
+    for k in range(20):
+        # Damaged frames carry pulses from 1850 up, valid ones from 1200 up: none may leak.
+        damaged = bytearray(protocol.encode_command(protocol.CommandFrame(1850 + k, 500), 900 + k))
+        flipped = bytearray(damaged)
+        flipped[rng.integers(2, len(damaged))] ^= 0x10
+        prefix = [
+            b"",
+            bytes(damaged[: rng.integers(3, len(damaged))]),
+            rng.bytes(int(rng.integers(5, 40))),
+            bytes(flipped),
+            b"\xa5\x5a\x01\x02" + rng.bytes(int(rng.integers(0, 8))),
+        ][k % 5]
+        segment = prefix + protocol.encode_command(protocol.CommandFrame(1200 + 20 * k, 500), k)
+        stream += segment
+        rig.send(segment)
+        time.sleep(0.06)
+    rig.wait_virtual(0.1)
+    expected = [
+        f.message.pwm_us
+        for f in protocol.FrameDecoder().feed(stream)
+        if isinstance(f.message, protocol.CommandFrame)
+    ]
+    applied = [round(before)] + [round(p.width_us) for p in rig.pulses(since=start)]
+    changes = [w for a, w in itertools.pairwise(applied) if w != a]
+    assert len(expected) >= 15, "most valid frames survive their damaged prefix"
+    assert all(pulse < 1850 for pulse in expected)
+    assert changes == expected, (changes, expected)
 
 
 def _flagged_window(rig: Rig, fault: str, n: int = 1) -> tuple[cosim.ServedFrame, list]:
