@@ -422,3 +422,37 @@ def test_kiss_telemetry_build_reads_the_esc_frames(firmware_images: dict, tmp_pa
         assert any(values == pytest.approx(v, abs=1.0) for v in readings), values
     flagged = [f for t, f in r.telemetry(since=bad.t_sent) if f.status & FAULT_FLAGS]
     assert flagged, "a KISS frame with a bad CRC must be flagged"
+
+
+def test_rates_from_eeprom_400_hz_servo_and_100_hz_telemetry(
+    firmware_images: dict, tmp_path: Path
+) -> None:
+    settings = cosim.CosimSettings(telemetry_hz=100, servo_hz=400)
+    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=9)
+    bridge = cosim.FirmwareBridge(
+        simulator, tmp_path / "fast.tty", firmware_images["hott"], settings
+    )
+    bridge.open()
+    stop = threading.Event()
+    thread = threading.Thread(target=bridge.run, args=(stop,), daemon=True)
+    thread.start()
+    port = serial.Serial(str(tmp_path / "fast.tty"), 115200, timeout=0.05)
+    r = Rig(bridge, port)
+    try:
+        r.wait_virtual(2.3)
+        data = r.command(1650)
+        arrived = r.chunk(data).t_received
+        r.wait_virtual(0.5)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        port.close()
+    pulses = r.pulses(since=1.0)
+    periods = [b.t - a.t for a, b in itertools.pairwise(pulses)]
+    assert all(abs(p - 1 / 400) < 1e-6 for p in periods), "servo frames every 2.5 ms"
+    first = next(p for p in r.pulses(since=arrived) if abs(p.width_us - 1650) <= 0.5)
+    assert first.t - arrived <= 1 / 400 + WAKE_S
+    stamps = [f.timestamp_us for _, f in r.telemetry(since=1.0)]
+    steps = [(b - a) % (1 << 32) for a, b in itertools.pairwise(stamps)]
+    assert len(steps) > 100
+    assert all(abs(step - 10_000) <= 1100 for step in steps), "telemetry every 10 ms"
