@@ -456,3 +456,11 @@ def test_rates_from_eeprom_400_hz_servo_and_100_hz_telemetry(
     steps = [(b - a) % (1 << 32) for a, b in itertools.pairwise(stamps)]
     assert len(steps) > 100
     assert all(abs(step - 10_000) <= 1100 for step in steps), "telemetry every 10 ms"
+
+
+def test_a_runner_that_fails_is_an_error(firmware_images: dict, tmp_path: Path) -> None:
+    image = replace(firmware_images["hott"], hex_path=tmp_path / "missing.hex")
+    bridge = cosim.FirmwareBridge(ThrusterSimulator(_quiet_t100()), tmp_path / "x.tty", image)
+    with pytest.raises(RuntimeError, match="runner exited with code 1"):
+        bridge.run(threading.Event())
+    assert not (tmp_path / "x.tty").exists(), "the link is removed"

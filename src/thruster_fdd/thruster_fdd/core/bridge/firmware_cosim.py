@@ -446,13 +446,20 @@ class FirmwareBridge:
         self._faults.put(fault)
 
     def run(self, stop: threading.Event) -> None:
-        """Run the co-simulation until ``stop`` is set or the runner exits (then close)."""
+        """Run the co-simulation until ``stop`` is set or the runner exits (then close).
+
+        Raises
+        ------
+        RuntimeError
+            If the runner failed (its error is on stderr).
+        """
         if self._proc is None:
             self.open()
-        runner_out = self._proc.stdout.fileno()
+        proc = self._proc
+        runner_out = proc.stdout.fileno()
         self._send(_CMD_GO)
         try:
-            while not stop.is_set() and self._proc.poll() is None:
+            while not stop.is_set() and proc.poll() is None:
                 self._apply_faults()
                 ready, _, _ = select.select([runner_out, self._master], [], [], 0.05)
                 if self._master in ready:
@@ -467,6 +474,8 @@ class FirmwareBridge:
                         self._handle(kind, payload)
         finally:
             self.close()
+        if not stop.is_set() and proc.returncode:
+            raise RuntimeError(f"the co-simulation runner exited with code {proc.returncode}")
 
     # ---- runner I/O ------------------------------------------------------------------------
 
