@@ -31,7 +31,6 @@ import struct
 import subprocess
 import threading
 import time
-import tty
 from collections import deque
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -41,6 +40,7 @@ import numpy as np
 from thruster_fdd.core import protocol
 from thruster_fdd.core.bridge import hott
 from thruster_fdd.core.bridge.firmware_build import VARIANTS, FirmwareImage, firmware_dir
+from thruster_fdd.core.bridge.pty_link import PtyLink
 from thruster_fdd.core.physics import Sample, ThrusterSimulator
 
 CPU_HZ = 16_000_000
@@ -349,8 +349,8 @@ class FirmwareBridge:
         self._rng = np.random.default_rng(seed)
         self._faults: queue.SimpleQueue[Fault] = queue.SimpleQueue()
         self._proc: subprocess.Popen[bytes] | None = None
+        self._pty: PtyLink | None = None
         self._master: int | None = None
-        self._slave: int | None = None
         self._inbox = bytearray()
         self._decoder = protocol.FrameDecoder()
         self._last_tick: float | None = None
@@ -406,20 +406,10 @@ class FirmwareBridge:
             "kissPeriodS": self._settings.kiss_period_s,
         }
         command = _runner_command(self._image, options)
-        master, slave = os.openpty()
-        # Raw mode: no echo, no line editing, no CR/LF translation of the binary frames.
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        self._master, self._slave = master, slave
-        device = os.ttyname(slave)
-        self._link.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self._link.with_name(self._link.name + ".tmp")
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        tmp.symlink_to(device)
-        tmp.replace(self._link)
+        self._pty = PtyLink.open(self._link)
+        self._master = self._pty.master
         self._proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        return device
+        return self._pty.device
 
     def close(self) -> None:
         """Stop the runner, remove the link and close the pty."""
@@ -433,13 +423,10 @@ class FirmwareBridge:
                 self._proc.wait()
             self._drain_runner()
             self._proc = None
-        with contextlib.suppress(FileNotFoundError):
-            self._link.unlink()
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master = self._slave = None
+        if self._pty is not None:
+            self._pty.close()
+        self._pty = None
+        self._master = None
 
     def inject(self, fault: Fault) -> None:
         """Queue a fault; it takes effect within one pass of :meth:`run`. Thread-safe."""
