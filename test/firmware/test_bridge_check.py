@@ -35,18 +35,18 @@ def bridge(
 def test_a_healthy_bridge_passes_and_applies_the_pulse(
     bridge: cosim.FirmwareBridge, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # The first seconds after a reset are arming (neutral) and the ESC's first reply.
-    arming = bridge_check.check_bridge(str(bridge.link), seconds=2.5, pulse_us=1600)
-    assert arming.version is not None
-    assert "the commanded 1600 µs pulse was never applied" in arming.problems(50.0)
-    assert bridge_check.main([str(bridge.link), "--pulse", "1600", "--seconds", "2"]) == 0
+    deadline = time.monotonic() + 10.0
+    while bridge.virtual_time < 2.3 and time.monotonic() < deadline:
+        time.sleep(0.05)  # arming: the bridge applies no pulse for 2 s after a reset
+    # --rate 30: a loaded machine may run the co-simulation below real time.
+    argv = [str(bridge.link), "--pulse", "1600", "--seconds", "2", "--rate", "30"]
+    assert bridge_check.main(argv) == 0, capsys.readouterr().out
     out = capsys.readouterr().out
     assert "firmware: 1.0.0" in out
     assert "last: pulse 1600 µs" in out
     assert out.strip().endswith("bridge OK")
     end = bridge.virtual_time + 0.1
-    deadline = time.monotonic() + 2.0
-    while bridge.virtual_time < end and time.monotonic() < deadline:
+    while bridge.virtual_time < end and time.monotonic() < deadline + 5.0:
         time.sleep(0.01)
     assert abs(list(bridge.pulses)[-1].width_us - 1500) <= 0.5, "the check ends in neutral"
 
