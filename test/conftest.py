@@ -35,6 +35,15 @@ def ros_context() -> Iterator[object]:
         rclpy.try_shutdown(context=context)
 
 
+@pytest.fixture(scope="session")
+def firmware_images(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    """The bridge firmware built from scratch for this run, ``{variant: FirmwareImage}``."""
+    from thruster_fdd.core.bridge.firmware_build import build_firmware
+
+    out = tmp_path_factory.mktemp("firmware")
+    return {image.variant: image for image in build_firmware(out)}
+
+
 @pytest.fixture
 def load_script() -> Callable[[str], ModuleType]:
     """Import ``scripts/<name>.py`` as module ``name`` (registered in ``sys.modules``, so the

@@ -25,6 +25,7 @@ from typing import Any
 import yaml
 
 from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK
+from thruster_fdd.commands.emulate import BRIDGES
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
@@ -63,6 +64,9 @@ class ThrusterPlan:
         Command signal of the command player (simulated thrusters).
     fault_at_s, fault_condition : float or None, str or None
         Fault injected into the simulated thruster at this time after start.
+    bridge : str
+        What serves a simulated thruster's bridge: ``python`` (the emulator) or ``firmware``
+        (the bridge firmware on an emulated ATmega328P, HoTT ESC telemetry).
     """
 
     id: str
@@ -74,6 +78,7 @@ class ThrusterPlan:
     signal: str = "mission"
     fault_at_s: float | None = None
     fault_condition: str | None = None
+    bridge: str = "python"
 
     def __post_init__(self) -> None:
         if not self.id.isidentifier():
@@ -84,6 +89,13 @@ class ThrusterPlan:
                 raise BadInputError(f"thruster {self.id}: unknown {name} {value!r}")
         if (self.fault_at_s is None) != (self.fault_condition is None):
             raise BadInputError(f"thruster {self.id}: a fault needs both a time and a condition")
+        if self.bridge not in BRIDGES:
+            raise BadInputError(f"thruster {self.id}: bridge must be one of {BRIDGES}")
+        if self.bridge == "firmware" and (self.port is not None or self.protocol != "tfdd"):
+            raise BadInputError(
+                f"thruster {self.id}: bridge firmware is for simulated thrusters (no port) and "
+                "speaks tfdd"
+            )
 
 
 @dataclass(frozen=True)
@@ -104,6 +116,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
     p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz (10-100)")
     p.add_argument("--signal", default="mission", help="command signal of simulated thrusters")
+    p.add_argument(
+        "--bridge",
+        choices=BRIDGES,
+        default="python",
+        help="what serves simulated thrusters' bridges (a config entry's bridge: key wins): the "
+        "Python emulator or the bridge firmware on an emulated ATmega328P",
+    )
     p.add_argument(
         "--fault",
         action="append",
@@ -142,17 +161,25 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
             unknown = set(entry) - known
             if unknown:
                 raise BadInputError(f"{args.config}: unknown thruster key(s) {sorted(unknown)}")
-            plans.append(ThrusterPlan(**entry))
+            defaults = {} if "port" in entry else {"bridge": args.bridge}
+            plans.append(ThrusterPlan(**(defaults | entry)))
     else:
         if args.thrusters < 1:
             raise BadInputError("--thrusters must be >= 1")
         rate = args.rate
         plans = [
-            ThrusterPlan(id=f"t{i}", preset=args.preset, seed=i, signal=args.signal)
+            ThrusterPlan(
+                id=f"t{i}", preset=args.preset, seed=i, signal=args.signal, bridge=args.bridge
+            )
             for i in range(args.thrusters)
         ]
     if not 1.0 <= rate <= 1000.0:
         raise BadInputError(f"telemetry rate must be within 1..1000 Hz, got {rate}")
+    firmware = any(p.bridge == "firmware" for p in plans)
+    if firmware and not (rate.is_integer() and 10 <= rate <= 100):
+        raise BadInputError(
+            f"the firmware bridge sends 10..100 whole Hz of telemetry, got {rate:g}"
+        )
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise BadInputError("thruster ids must be unique")
@@ -175,6 +202,7 @@ def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[
         emulate = [sys.executable, "-m", "thruster_fdd.cli", "emulate", "--link", port]
         emulate += ["--preset", plan.preset, "--condition", plan.condition]
         emulate += ["--rate", str(rate), "--seed", str(plan.seed), "--protocol", plan.protocol]
+        emulate += ["--bridge", plan.bridge]
         if plan.fault_at_s is not None and plan.fault_condition is not None:
             emulate += ["--fault-at", str(plan.fault_at_s)]
             emulate += ["--fault-condition", plan.fault_condition]
@@ -213,6 +241,11 @@ def run(args: argparse.Namespace) -> int:
     from thruster_fdd.nodes.monitor import Monitor
 
     rate, plans = plan_from_args(args)
+    if any(p.bridge == "firmware" for p in plans):
+        from thruster_fdd.core.bridge.firmware_build import ensure_built
+
+        # Once here rather than in every emulator at once.
+        ensure_built("hott")
     models = (args.models or default_models_dir()).resolve()
     run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
     stop = threading.Event()

@@ -1,0 +1,58 @@
+"""A pseudo-terminal published under a stable symlink: a serial port for the ESC driver.
+
+The slave side is put in raw mode (no echo, no line editing, no CR/LF translation of binary
+frames) and the link is replaced atomically, so the driver opens the link exactly as it opens a
+USB serial adapter and sees it vanish when the pty closes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tty
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class PtyLink:
+    """An open pty and the link pointing at its slave.
+
+    Attributes
+    ----------
+    link : Path
+        The symlink: the port name the driver opens.
+    master, slave : int
+        File descriptors; the master is non-blocking.
+    device : str
+        The slave device path (``/dev/pts/N``).
+    """
+
+    link: Path
+    master: int
+    slave: int
+    device: str
+
+    @classmethod
+    def open(cls, link: str | Path) -> PtyLink:
+        """Create the pty and point ``link`` at it (its folder is created, an old link replaced)."""
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        link = Path(link)
+        link.parent.mkdir(parents=True, exist_ok=True)
+        tmp = link.with_name(link.name + ".tmp")
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        device = os.ttyname(slave)
+        tmp.symlink_to(device)
+        tmp.replace(link)
+        return cls(link, master, slave, device)
+
+    def close(self) -> None:
+        """Remove the link and close both ends (the driver sees the port vanish)."""
+        with contextlib.suppress(FileNotFoundError):
+            self.link.unlink()
+        for fd in (self.master, self.slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
