@@ -1,0 +1,379 @@
+"""One robust reader of MCAP recordings: whatever is recoverable, with the damage said.
+
+Every tool that reads a recording (``read_trace_mcap``, ``replay_check.load_bag``,
+``recording.read_recovered``) goes through :func:`read_mcap`. It walks the records itself
+rather than trusting the summary, so a file cut by ``kill -9`` (no footer, no summary) reads up
+to its last complete record; it checks every chunk's CRC and the data section's, skips a chunk
+that fails (its messages are counted from the message indexes behind it) and a record that does
+not parse, and stops where the records no longer fit the file. What was lost is listed in
+``McapContents.problems`` and said in one :class:`DamagedRecordingWarning`. A file that does
+not start with the MCAP magic, or from which not one message can be read, is refused with
+``BadInputError`` (exit 2, one line). No rclpy.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+import warnings
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import lz4.frame
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import (
+    Channel,
+    Chunk,
+    DataEnd,
+    Footer,
+    Message,
+    MessageIndex,
+    Metadata,
+    Schema,
+    Statistics,
+)
+from mcap_ros2.decoder import DecoderFactory
+
+from thruster_fdd.core.errors import BadInputError, PartialInputWarning
+
+MAGIC = b"\x89MCAP0\r\n"
+"""The 8 bytes that start (and end) every MCAP file."""
+
+
+_RECORD_HEADER = struct.Struct("<BQ")
+
+
+_PARSERS: dict[int, Callable[[ReadDataStream, int], Any]] = {
+    Opcode.SCHEMA: lambda s, _: Schema.read(s),
+    Opcode.CHANNEL: lambda s, _: Channel.read(s),
+    Opcode.MESSAGE: Message.read,
+    Opcode.CHUNK: lambda s, _: Chunk.read(s),
+    Opcode.MESSAGE_INDEX: lambda s, _: MessageIndex.read(s),
+    Opcode.METADATA: lambda s, _: Metadata.read(s),
+    Opcode.STATISTICS: lambda s, _: Statistics.read(s),
+    Opcode.DATA_END: lambda s, _: DataEnd.read(s),
+    Opcode.FOOTER: lambda s, _: Footer.read(s),
+}
+"""The records a reader needs; every other record (and any future one) is skipped whole."""
+
+
+_KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
+
+
+_PRIVATE_OPCODES = 0x80
+"""Record types from here up are for private use (skipped); below, only the known ones occur."""
+
+
+# What a damaged record can raise while parsing (besides McapError).
+_PARSE_ERRORS = (McapError, struct.error, UnicodeDecodeError, ValueError, KeyError, IndexError)
+
+
+class DamagedRecordingWarning(PartialInputWarning):
+    """A recording was read only in part; the text says what was lost and how much."""
+
+
+@dataclass(frozen=True)
+class McapChannel:
+    """A channel of a recording: topic, message encoding and its schema (None if unknown)."""
+
+    topic: str
+    message_encoding: str
+    schema: Schema | None
+
+
+@dataclass(frozen=True)
+class McapContents:
+    """What could be read from an MCAP file.
+
+    Attributes
+    ----------
+    path : Path
+        The file.
+    channels : dict of int to McapChannel
+        Every channel seen, by id.
+    messages : list of (int, int, bytes)
+        (channel id, log time ns, data) of every message read, in file order.
+    metadata : dict of str to dict of str to str
+        Metadata records by name (a later record of the same name adds to the earlier).
+    complete : bool
+        Whether the file ended properly: footer and closing magic present.
+    problems : tuple of str
+        What was lost or could not be checked, each with its extent; empty for a sound file.
+    expected_messages : int or None
+        The message count of the file's statistics record, when it has one.
+    """
+
+    path: Path
+    channels: dict[int, McapChannel]
+    messages: list[tuple[int, int, bytes]]
+    metadata: dict[str, dict[str, str]]
+    complete: bool
+    problems: tuple[str, ...]
+    expected_messages: int | None = None
+
+    def topic_messages(
+        self, accept: Callable[[McapChannel], bool]
+    ) -> list[tuple[McapChannel, int, bytes]]:
+        """(channel, log time ns, data) of the messages on channels that ``accept``."""
+        chosen = {cid: ch for cid, ch in self.channels.items() if accept(ch)}
+        return [(chosen[cid], t, data) for cid, t, data in self.messages if cid in chosen]
+
+
+@dataclass
+class _Walk:
+    """Mutable state of one pass over a file."""
+
+    path: Path
+    channels: dict[int, McapChannel] = field(default_factory=dict)
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    messages: list[tuple[int, int, bytes]] = field(default_factory=list)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+    raw_channels: dict[int, Channel] = field(default_factory=dict)
+    bad_chunks: int = 0
+    lost_in_chunks: int = 0
+    lost_span_ns: int = 0
+    last_chunk_bad: bool = False
+    expected: int | None = None
+
+    def add_schema(self, schema: Schema) -> None:
+        # The first definition wins: the summary repeats them outside any checked chunk.
+        self.schemas.setdefault(schema.id, schema)
+
+    def add_channel(self, channel: Channel) -> None:
+        self.raw_channels.setdefault(channel.id, channel)
+
+    def resolve_channels(self) -> None:
+        """Channels with their schemas (a schema may come after its channel in a summary)."""
+        self.channels = {
+            cid: McapChannel(ch.topic, ch.message_encoding, self.schemas.get(ch.schema_id))
+            for cid, ch in self.raw_channels.items()
+        }
+        orphans = sum(1 for cid, _, _ in self.messages if cid not in self.channels)
+        if orphans:
+            self.problems.append(f"{orphans} message(s) on channels whose definition was lost")
+
+    def add_message(self, message: Message) -> None:
+        self.messages.append((message.channel_id, message.log_time, message.data))
+
+
+def _describe_start(head: bytes) -> str:
+    """A few words on what a file that is not MCAP starts with."""
+    if not head:
+        return "it is empty"
+    try:
+        text = head.decode("ascii")
+    except UnicodeDecodeError:
+        return f"it starts with bytes {head[:8].hex(' ')}"
+    line = text.splitlines()[0] if text.splitlines() else text
+    return f"it starts with the text {line[:40]!r}"
+
+
+def _records(
+    data: bytes | memoryview, start: int, end: int
+) -> tuple[list[tuple[int, int, memoryview]], str]:
+    """(offset, opcode, body) of the records in ``data[start:end]`` that fit, and why the walk
+    stopped early ('' when it reached ``end``)."""
+    out: list[tuple[int, int, memoryview]] = []
+    view = memoryview(data)
+    pos = start
+    while pos < end:
+        if end - pos < _RECORD_HEADER.size:
+            return out, f"{end - pos} stray bytes at byte {pos}"
+        opcode, length = _RECORD_HEADER.unpack_from(data, pos)
+        body_start = pos + _RECORD_HEADER.size
+        if length > end - body_start:
+            return out, f"a record at byte {pos} runs past the end ({length} bytes declared)"
+        out.append((pos, opcode, view[body_start : body_start + length]))
+        pos = body_start + length
+    return out, ""
+
+
+def _parse(opcode: int, body: memoryview) -> Any:
+    parser = _PARSERS.get(opcode)
+    if parser is None:
+        return None
+    return parser(ReadDataStream(io.BytesIO(body)), len(body))
+
+
+MAX_CHUNK_BYTES = 256 * 1024 * 1024
+"""Largest uncompressed chunk read (the recorder writes 512 KiB by default): a bound on what a
+damaged or hostile size field can make the reader allocate."""
+
+
+def _decompress(chunk: Chunk) -> bytes:
+    size = chunk.uncompressed_size
+    if size > MAX_CHUNK_BYTES:
+        raise ValueError(f"declares {size} bytes uncompressed, above {MAX_CHUNK_BYTES}")
+    if chunk.compression == "zstd":
+        return zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
+    if chunk.compression == "lz4":
+        return lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=size)
+    if chunk.compression == "":
+        return bytes(chunk.data)
+    raise ValueError(f"unknown compression {chunk.compression!r}")
+
+
+def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> None:
+    walk.last_chunk_bad = True
+    span_ns = max(0, chunk.message_end_time - chunk.message_start_time)
+    try:
+        data = _decompress(chunk)
+    except (zstandard.ZstdError, RuntimeError, ValueError) as exc:
+        walk.problems.append(f"chunk at byte {offset} does not decompress ({exc})")
+        walk.bad_chunks += 1
+        walk.lost_span_ns += span_ns
+        return
+    if len(data) != chunk.uncompressed_size or (
+        chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc
+    ):
+        walk.problems.append(f"chunk at byte {offset} fails its CRC")
+        walk.bad_chunks += 1
+        walk.lost_span_ns += span_ns
+        return
+    records, stopped = _records(data, 0, len(data))
+    parsed = []
+    try:
+        parsed = [(opcode, _parse(opcode, body)) for _, opcode, body in records]
+    except _PARSE_ERRORS as exc:
+        stopped = f"a record does not parse ({type(exc).__name__})"
+    if stopped:
+        # The CRC matched, so the writer itself wrote this: keep nothing of it.
+        walk.problems.append(f"chunk at byte {offset} is malformed: {stopped}")
+        walk.bad_chunks += 1
+        walk.lost_span_ns += span_ns
+        return
+    walk.last_chunk_bad = False
+    for opcode, record in parsed:
+        _take(walk, opcode, record)
+
+
+def _take(walk: _Walk, opcode: int, record: Any) -> None:
+    if opcode == Opcode.SCHEMA:
+        walk.add_schema(record)
+    elif opcode == Opcode.CHANNEL:
+        walk.add_channel(record)
+    elif opcode == Opcode.MESSAGE:
+        walk.add_message(record)
+
+
+def read_mcap(path: str | Path, *, require_messages: bool = True) -> McapContents:
+    """Read every message that can be recovered from an MCAP file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    require_messages : bool
+        Refuse a file from which no message can be read. False for a recorder's own files,
+        where a file cut before its first message (even inside the magic) is an empty result.
+
+    Returns
+    -------
+    McapContents
+        Channels, messages, metadata and the problems met (see the module docstring).
+
+    Raises
+    ------
+    BadInputError
+        If the file does not start with the MCAP magic (e.g. a CSV renamed ``.mcap``), or
+        holds no message that can be read (``require_messages``).
+    OSError
+        If the file cannot be read.
+    """
+    path = Path(path)
+    data = path.read_bytes()
+    if data[: len(MAGIC)] != MAGIC:
+        if require_messages or not MAGIC.startswith(data):
+            raise BadInputError(f"{path}: not an MCAP recording ({_describe_start(data[:40])})")
+        problem = f"the file ends early ({len(data)} bytes, inside the magic): the rest is lost"
+        return McapContents(path, {}, [], {}, False, (problem,))
+    walk = _Walk(path)
+    records, stopped = _records(data, len(MAGIC), len(data))
+    footer_end = None
+    for offset, opcode, body in records:
+        try:
+            if not (opcode in _KNOWN_OPCODES or opcode >= _PRIVATE_OPCODES):
+                raise ValueError(f"unknown record type {opcode:#04x}")
+            record = _parse(opcode, body)
+        except _PARSE_ERRORS as exc:
+            # Perhaps a chunk: the message indexes behind it count what it held.
+            walk.problems.append(f"record at byte {offset} is damaged ({exc})")
+            walk.last_chunk_bad = True
+            continue
+        if opcode == Opcode.CHUNK:
+            _read_chunk(walk, record, offset)
+        elif opcode == Opcode.MESSAGE_INDEX:
+            if walk.last_chunk_bad:
+                walk.lost_in_chunks += len(record.records)
+        elif opcode == Opcode.METADATA:
+            walk.metadata.setdefault(record.name, {}).update(record.metadata)
+        elif opcode == Opcode.STATISTICS:
+            walk.expected = record.message_count
+        elif opcode == Opcode.DATA_END:
+            if record.data_section_crc not in (0, zlib.crc32(memoryview(data)[:offset])):
+                walk.problems.append("the data section fails its CRC")
+        elif opcode == Opcode.FOOTER:
+            footer_end = offset + _RECORD_HEADER.size + len(body)
+            break
+        else:
+            _take(walk, opcode, record)
+    complete = footer_end is not None and data[footer_end:] == MAGIC
+    if footer_end is None:
+        end = stopped or "no footer"
+        walk.problems.append(f"the file ends early ({end}; {len(data)} bytes): the rest is lost")
+    elif not complete:
+        walk.problems.append("the closing magic after the footer is missing or damaged")
+    walk.resolve_channels()
+    if walk.bad_chunks or walk.lost_in_chunks:
+        span = f" spanning {walk.lost_span_ns * 1e-9:.1f} s" if walk.lost_span_ns else ""
+        walk.problems.append(
+            f"{walk.bad_chunks} damaged chunk(s) skipped: {walk.lost_in_chunks} message(s) "
+            f"lost{span}"
+        )
+    if not walk.messages and require_messages:
+        summary = "; ".join(walk.problems) or "it holds no messages"
+        raise BadInputError(f"{path}: no message could be read ({summary})")
+    return McapContents(
+        path,
+        walk.channels,
+        walk.messages,
+        walk.metadata,
+        complete,
+        tuple(walk.problems),
+        walk.expected,
+    )
+
+
+def warn_if_damaged(contents: McapContents, extra: tuple[str, ...] = ()) -> None:
+    """Issue one :class:`DamagedRecordingWarning` saying what of ``contents`` was lost."""
+    problems = contents.problems + extra
+    if not problems:
+        return
+    read = len(contents.messages)
+    of = f" of {contents.expected_messages}" if contents.expected_messages else ""
+    warnings.warn(
+        DamagedRecordingWarning(
+            f"{contents.path}: recording read in part ({read}{of} messages read): "
+            f"{'; '.join(problems)}"
+        ),
+        stacklevel=3,
+    )
+
+
+def ros2_decoder(channel: McapChannel) -> Callable[[bytes], Any] | None:
+    """A CDR decoder for the channel's ``ros2msg`` schema; None if it has another encoding,
+    no schema, or a schema that does not parse."""
+    if channel.schema is None:
+        return None
+    try:
+        return DecoderFactory().decoder_for(channel.message_encoding, channel.schema)
+    except Exception:
+        # The schema text is input and its parser raises many kinds: any error means unusable.
+        return None
