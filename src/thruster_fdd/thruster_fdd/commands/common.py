@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+from pathlib import Path
+
+from thruster_fdd.core.errors import BadInputError
 
 EXIT_OK = 0
 """Success."""
@@ -46,3 +50,33 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return value
+
+
+def check_output(path: Path, option: str, *, folder: bool = False) -> None:
+    """Refuse an output path that cannot be written, before any work is done.
+
+    Parameters
+    ----------
+    path : Path
+        The file (or, with ``folder``, the folder) a command will write.
+    option : str
+        The option that named it, for the message (``--out``).
+    folder : bool
+        Whether ``path`` is a folder.
+
+    Raises
+    ------
+    BadInputError
+        If ``path`` exists as the other kind (a folder for a file, a file for a folder), or its
+        nearest existing parent is not a writable folder.
+    """
+    if path.exists() and path.is_dir() != folder:
+        kind = "a folder" if path.is_dir() else "a file"
+        raise BadInputError(f"{option} {path}: exists and is {kind}")
+    parent = path.parent.absolute()
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise BadInputError(f"{option} {path}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise BadInputError(f"{option} {path}: cannot write in {parent}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from thruster_fdd.commands.common import EXIT_OK, positive_float
+from thruster_fdd.commands.common import EXIT_OK, check_output, non_negative_int, positive_float
 from thruster_fdd.core.errors import BadInputError
 
 NAME = "train"
@@ -31,7 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     n.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
     n.add_argument("--out", type=Path, default=Path("models/nominal"), metavar="DIR")
-    n.add_argument("--seed", type=int, default=0, help="seed of initialisation and shuffling")
+    n.add_argument(
+        "--seed", type=non_negative_int, default=0, help="seed of initialisation and shuffling"
+    )
     n.add_argument(
         "--mode",
         choices=["parallel", "series-parallel"],
@@ -39,9 +41,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="NARX configuration the node uses for residuals (and trains for)",
     )
     n.add_argument("--validation-fraction", type=float, default=0.2, metavar="F")
-    n.add_argument("--epochs", type=int, help="one-step epochs (default: the mode's default)")
     n.add_argument(
-        "--finetune-epochs", type=int, help="free-run epochs, parallel (default: the mode's)"
+        "--epochs", type=non_negative_int, help="one-step epochs (default: the mode's default)"
+    )
+    n.add_argument(
+        "--finetune-epochs",
+        type=non_negative_int,
+        help="free-run epochs, parallel (default: the mode's)",
     )
     c = what.add_parser(
         "classifier",
@@ -59,14 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     c.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
     c.add_argument("--nominal", type=Path, default=Path("models/nominal"), metavar="DIR")
     c.add_argument("--out", type=Path, default=Path("models/classifier"), metavar="DIR")
-    c.add_argument("--seed", type=int, default=0, help="seed of initialisation")
+    c.add_argument("--seed", type=non_negative_int, default=0, help="seed of initialisation")
     c.add_argument("--window", type=positive_float, default=20.0, help="window length, s")
     c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
-
-
-def _check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise BadInputError(f"--out {out}: exists and is not a folder")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,7 +76,9 @@ def run(args: argparse.Namespace) -> int:
 
     from thruster_fdd.core.traces.files import file_digests, read_traces
 
-    _check_out(args.out)
+    check_output(args.out, "--out", folder=True)
+    if args.out.resolve() in {Path(d).resolve() for d in args.data}:
+        raise BadInputError(f"--out {args.out} is also a --data folder; it would be replaced")
     torch.set_num_threads(1)
     if args.what == "nominal":
         from thruster_fdd.core.nominal.training import default_config, train_nominal
@@ -88,8 +91,6 @@ def run(args: argparse.Namespace) -> int:
             k: v for k, v in (("epochs", args.epochs), ("finetune_epochs", args.finetune_epochs))
             if v is not None
         }  # fmt: skip
-        if any(v < 0 for v in changes.values()):
-            raise BadInputError("--epochs and --finetune-epochs must be >= 0")
         traces = read_traces(args.data)
         card = train_nominal(
             traces,
@@ -106,8 +107,13 @@ def run(args: argparse.Namespace) -> int:
             f"rpm r2 {m['rpm_r2']:.4f}, current r2 {m['current_r2']:.4f}"
         )
         return EXIT_OK
+    from thruster_fdd.core.artifact import check_files
     from thruster_fdd.core.diagnosis.training import ClassifierConfig, train_classifier
+    from thruster_fdd.core.nominal.card import read_nominal_card
 
+    if args.out.resolve() == args.nominal.resolve():
+        raise BadInputError(f"--out {args.out} is the --nominal model; it would be replaced")
+    check_files(args.nominal, read_nominal_card(args.nominal))
     if args.epochs < 1:
         raise BadInputError(f"--epochs must be >= 1, got {args.epochs}")
     traces = read_traces(args.data)

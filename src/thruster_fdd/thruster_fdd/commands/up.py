@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -18,16 +19,18 @@ import sys
 import tempfile
 import threading
 import time
+import typing
 from dataclasses import dataclass
 from pathlib import Path
+from types import UnionType
 from typing import Any
 
-import yaml
-
-from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK
+from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK, positive_float
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.safe_yaml import load_yaml
+from thruster_fdd.core.sim.signals import make_signal
 from thruster_fdd.lifetime import child_env, node_command, stop_children, stop_with_parent
 
 NAME = "up"
@@ -39,6 +42,14 @@ DESCRIPTION = (
     "A recorder writes every topic to MCAP. "
     "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent)."
 )
+
+
+MAX_THRUSTERS = 16
+"""Most thrusters ``up`` starts (each is 3-4 processes on this machine)."""
+
+
+PROTOCOLS = ("tfdd", "kiss")
+"""Telemetry formats of a bridge (``esc_driver``'s ``protocol``)."""
 
 
 @dataclass(frozen=True)
@@ -78,12 +89,24 @@ class ThrusterPlan:
     def __post_init__(self) -> None:
         if not self.id.isidentifier():
             raise BadInputError(f"thruster id {self.id!r} must be a ROS name token like t0")
+        if self.protocol not in PROTOCOLS:
+            known = ", ".join(PROTOCOLS)
+            raise BadInputError(
+                f"thruster {self.id}: protocol {self.protocol!r} is not one of {known}"
+            )
+        if self.seed < 0:
+            raise BadInputError(f"thruster {self.id}: seed must be >= 0, got {self.seed}")
         for name in ("condition", "fault_condition"):
             value = getattr(self, name)
             if value is not None and value not in CLASS_NAMES:
                 raise BadInputError(f"thruster {self.id}: unknown {name} {value!r}")
         if (self.fault_at_s is None) != (self.fault_condition is None):
             raise BadInputError(f"thruster {self.id}: a fault needs both a time and a condition")
+        if self.fault_at_s is not None and not 0.0 <= self.fault_at_s < math.inf:
+            raise BadInputError(
+                f"thruster {self.id}: fault time must be a finite number >= 0 s, got "
+                f"{self.fault_at_s}"
+            )
 
 
 @dataclass(frozen=True)
@@ -97,10 +120,14 @@ class ModelStage:
 MODEL_STAGES = (ModelStage("nominal_model", "nominal"), ModelStage("classifier", "classifier"))
 
 
+PLAYER_RATE_HZ = 20.0
+"""The command player's publishing rate (its ``rate_hz`` default), to check signal specs."""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd up``."""
     p.add_argument("--config", type=Path, help="YAML with rate_hz and a thrusters: list")
-    p.add_argument("--thrusters", type=int, default=1, help="number of simulated thrusters")
+    p.add_argument("--thrusters", type=int, default=1, help="number of simulated thrusters (1-16)")
     p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
     p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz (10-100)")
     p.add_argument("--signal", default="mission", help="command signal of simulated thrusters")
@@ -111,8 +138,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="ID:CONDITION@S",
         help="inject a condition into a simulated thruster at S seconds, e.g. t0:broken_blade_1@20",
     )
-    p.add_argument("--duration", type=float, help="stop after this many seconds (default: Ctrl-C)")
-    p.add_argument("--print-period", type=float, default=2.0, help="table refresh period, s")
+    p.add_argument(
+        "--duration", type=positive_float, help="stop after this many seconds (default: Ctrl-C)"
+    )
+    p.add_argument(
+        "--print-period", type=positive_float, default=2.0, help="table refresh period, s"
+    )
     p.add_argument(
         "--record-dir",
         type=Path,
@@ -128,24 +159,89 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _typed(value: Any, hint: Any, where: str) -> Any:
+    """``value`` from YAML as a ``ThrusterPlan`` field of type ``hint`` (str, int, float or
+    one of them or None); BadInputError naming ``where`` when it is not."""
+    options = (
+        typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, UnionType) else (hint,)
+    )
+    if value is None and type(None) in options:
+        return None
+    if str in options and isinstance(value, str):
+        return value
+    if int in options and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if float in options and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    names = {str: "a string", int: "an integer", float: "a number", type(None): "null"}
+    expected = " or ".join(names[t] for t in options)
+    raise BadInputError(f"{where} must be {expected}, got {value!r}")
+
+
+def _plans_from_config(path: Path, default_rate: float) -> tuple[float, list[ThrusterPlan]]:
+    """The telemetry rate and thrusters of an ``up --config`` file (``config/up.yaml``)."""
+    spec = load_yaml(path.read_text(encoding="utf-8", errors="replace"), str(path))
+    if spec is None:
+        spec = {}
+    if not isinstance(spec, dict):
+        raise BadInputError(f"{path}: expected a mapping with rate_hz and thrusters")
+    unknown = sorted(set(spec) - {"rate_hz", "thrusters"})
+    if unknown:
+        raise BadInputError(f"{path}: unknown key(s) {', '.join(map(str, unknown))}")
+    rate = _typed(spec.get("rate_hz", default_rate), float, f"{path}: rate_hz")
+    entries = spec.get("thrusters")
+    if not isinstance(entries, list) or not entries:
+        raise BadInputError(f"{path}: needs a non-empty 'thrusters:' list")
+    hints = typing.get_type_hints(ThrusterPlan)
+    plans = []
+    for i, entry in enumerate(entries):
+        where = f"{path}: thrusters[{i}]"
+        if not isinstance(entry, dict):
+            raise BadInputError(f"{where} must be a mapping like {{id: t0}}, got {entry!r}")
+        unknown = sorted(set(map(str, entry)) - set(hints))
+        if unknown:
+            raise BadInputError(f"{where}: unknown key(s) {', '.join(unknown)}")
+        if "id" not in entry:
+            raise BadInputError(f"{where}: needs an id")
+        values = {k: _typed(v, hints[k], f"{where}.{k}") for k, v in entry.items()}
+        plans.append(ThrusterPlan(**values))
+    return rate, plans
+
+
+def _fault(text: str, ids: set[str]) -> tuple[str, str, float]:
+    """(id, condition, time s) of a ``--fault ID:CONDITION@S``."""
+    tid, _, rest = text.partition(":")
+    condition, _, at = rest.partition("@")
+    try:
+        at_s = float(at)
+    except ValueError:
+        at_s = math.nan
+    if tid not in ids or not condition or not 0.0 <= at_s < math.inf:
+        raise BadInputError(
+            f"--fault {text!r}: expected ID:CONDITION@SECONDS with a known id and a finite "
+            f"time >= 0 (ids: {', '.join(sorted(ids))})"
+        )
+    return tid, condition, at_s
+
+
 def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan, ...]]:
-    """The telemetry rate and the thrusters to run, from ``up``'s options or its --config."""
+    """The telemetry rate and the thrusters to run, from ``up``'s options or its --config.
+
+    Raises
+    ------
+    BadInputError
+        Naming the option or the config file's entry that is wrong: a config that is not plain
+        YAML (``core.safe_yaml``), a value of the wrong type, an unknown key, condition,
+        protocol or signal, a rate outside 1..1000 Hz, more than ``MAX_THRUSTERS`` thrusters,
+        repeated ids, a malformed ``--fault``.
+    """
     if args.config is not None:
-        spec: dict[str, Any] = yaml.safe_load(Path(args.config).read_text()) or {}
-        rate = float(spec.get("rate_hz", args.rate))
-        entries = spec.get("thrusters")
-        if not isinstance(entries, list) or not entries:
-            raise BadInputError(f"{args.config}: needs a non-empty 'thrusters:' list")
-        known = set(ThrusterPlan.__dataclass_fields__)
-        plans = []
-        for entry in entries:
-            unknown = set(entry) - known
-            if unknown:
-                raise BadInputError(f"{args.config}: unknown thruster key(s) {sorted(unknown)}")
-            plans.append(ThrusterPlan(**entry))
+        rate, plans = _plans_from_config(Path(args.config), args.rate)
     else:
-        if args.thrusters < 1:
-            raise BadInputError("--thrusters must be >= 1")
+        if not 1 <= args.thrusters <= MAX_THRUSTERS:
+            raise BadInputError(
+                f"--thrusters must be within 1..{MAX_THRUSTERS}, got {args.thrusters}"
+            )
         rate = args.rate
         plans = [
             ThrusterPlan(id=f"t{i}", preset=args.preset, seed=i, signal=args.signal)
@@ -153,17 +249,22 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
         ]
     if not 1.0 <= rate <= 1000.0:
         raise BadInputError(f"telemetry rate must be within 1..1000 Hz, got {rate}")
+    if len(plans) > MAX_THRUSTERS:
+        raise BadInputError(f"at most {MAX_THRUSTERS} thrusters, got {len(plans)}")
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise BadInputError("thruster ids must be unique")
     for text in args.fault:
-        tid, _, rest = text.partition(":")
-        condition, _, at = rest.partition("@")
-        if tid not in by_id or not at:
-            raise BadInputError(f"--fault {text!r}: expected ID:CONDITION@SECONDS with a known id")
+        tid, condition, at_s = _fault(text, set(by_id))
         by_id[tid] = ThrusterPlan(
-            **{**by_id[tid].__dict__, "fault_at_s": float(at), "fault_condition": condition}
+            **{**by_id[tid].__dict__, "fault_at_s": at_s, "fault_condition": condition}
         )
+    for plan in by_id.values():
+        if plan.port is None:
+            try:
+                make_signal(plan.signal, 1.0, PLAYER_RATE_HZ)
+            except BadInputError as exc:
+                raise BadInputError(f"thruster {plan.id}: signal: {exc}") from None
     return rate, tuple(by_id[p.id] for p in plans)
 
 
