@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pytest
-from probe import Probe, start_node
+from probe import Probe, non_finite_fields, start_node
 
 from thruster_fdd.core.bridge.emulator import (
     BridgeEmulator,
@@ -256,6 +256,12 @@ def test_driver_survived_everything(rig: Rig) -> None:
     n0 = len(rig.telemetry)
     rig.spin_for(1.0)
     assert len(rig.telemetry) - n0 > 0.8 * RATE_HZ
+
+
+def test_every_published_telemetry_field_is_finite(rig: Rig) -> None:
+    """After every link fault above (issue 16: no published field is ever non-finite)."""
+    assert len(rig.telemetry) > 500
+    assert [m.sequence for m in rig.telemetry if non_finite_fields(m)] == []
 
 
 def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:

@@ -179,10 +179,12 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
         replayed frames, bridge resets, sequence restarts, stuck bytes between frames, refused
         samples, bridge faults or the watchdog holding neutral; OK otherwise.
     """
-    rate = window.frames / window.period_s if window.period_s > 0 else 0.0
+    rate = window.frames / window.period_s if 0 < window.period_s < math.inf else 0.0
+    rate = rate if math.isfinite(rate) else 0.0  # a period of 5e-324 s
+    expected = window.expected_rate_hz if 0 < window.expected_rate_hz < math.inf else 0.0
     values = (
         ("telemetry_rate_hz", f"{rate:.1f}"),
-        ("expected_rate_hz", f"{window.expected_rate_hz:.1f}"),
+        ("expected_rate_hz", f"{expected:.1f}"),
         ("link", "open" if window.port_open else "closed"),
         ("crc_errors", str(window.crc_errors)),
         ("truncated_frames", str(window.truncated)),
@@ -210,14 +212,15 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
     ]
     if stuck and window.frames == 0:
         return LinkHealth(ERROR, f"{'; '.join(stuck)}, no telemetry (check wiring)", values)
-    stale_s = stale_after_periods / window.expected_rate_hz
-    if window.since_frame_s is None or window.since_frame_s > stale_s:
+    # Without a known rate, silence for a whole diagnostics period is stale.
+    stale_s = stale_after_periods / expected if expected else window.period_s
+    if window.since_frame_s is None or not window.since_frame_s <= stale_s:
         silent = (
             "no telemetry yet"
             if window.since_frame_s is None
             else (f"no telemetry for {window.since_frame_s:.1f} s")
         )
-        return LinkHealth(STALE, f"{silent} (expected {window.expected_rate_hz:g} Hz)", values)
+        return LinkHealth(STALE, f"{silent} (expected {expected:g} Hz)", values)
     problems = [
         text
         for count, text in (
