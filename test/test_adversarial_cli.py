@@ -53,6 +53,7 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     dup = [[*header, "rpm"], *([*row, row[r]] for row in rows)]
     (d / "dup.csv").write_text("\n".join(",".join(row) for row in dup) + "\n")
     (d / "afile").write_text("not a folder\n")
+    (d / "one.csv").write_text("t,command,voltage,rpm,current\n0,0,15,0,0\n")
     (d / "tag.yaml").write_text("rate_hz: !!python/object/apply:os.system [ls]\nthrusters: []\n")
     (d / "types.yaml").write_text("rate_hz: fast\nthrusters: [{id: t0}]\n")
     (d / "seed.yaml").write_text("thrusters: [{id: t0, seed: abc}]\n")
@@ -124,6 +125,9 @@ BAD_INPUT: list[tuple[str, str]] = [
     ("up --thrusters 1000", "1..16"),
     ("up --signal sine:99", "sine frequency"),
     ("up --rate nan", "telemetry rate"),
+    ("up --preset {w}/bomb.yaml", "anchors"),
+    ("up --record-dir {w}/afile", "--record-dir"),
+    ("up --models {w}/weights", "SHA-256"),
     ("train nominal --data {w}/ok.csv --out {w}/afile", "exists and is a file"),
     ("train nominal --data {w}/ok.csv --out {w}/afile/sub", "is a file, not a folder"),
     ("train nominal --data {w} --out {w}", "also a --data folder"),
@@ -131,11 +135,21 @@ BAD_INPUT: list[tuple[str, str]] = [
     ("train nominal --data {w}/ms.csv --out {w}/n", "looks like ms"),
     ("train nominal --data {w}/dup.csv --out {w}/n", "more than once"),
     ("train nominal --data {w}/csv.mcap --out {w}/n", "not an MCAP recording"),
+    ("train nominal --data {w}/one.csv --out {w}/n", "at least 10 s"),
+    (
+        "train classifier --data {w}/ok.csv --nominal {m}/nominal --out {w}/c --window 0.05",
+        "--window",
+    ),
+    (
+        "train classifier --data {w}/ok.csv --nominal {m}/nominal --out {w}/c --window 1e300",
+        "--window",
+    ),
     ("train classifier --data {w}/ok.csv --nominal {m}/nominal --out {m}/nominal", "replaced"),
     ("train classifier --data {w}/ok.csv --nominal {w}/weights/nominal --out {w}/c", "SHA-256"),
     ("evaluate nominal --rate nan", "--rate"),
     ("evaluate nominal --seeds 100000", "--seeds"),
     ("evaluate nominal --model {m}/nominal --data {w}/tiny.mcap", "no message could be read"),
+    ("evaluate nominal --model {m}/nominal --data {w}/one.csv", "too short"),
     ("evaluate nominal --model {m}/nominal --data {w}/ok.csv --json {w}/afile/x", "is a file"),
     ("discrepancy --measured {w}/ok.csv --start t100 --out {w}/afile", "exists and is a file"),
     ("discrepancy --measured {w}/ok.csv --start t100 --out {w}/d --workers 1000", "--workers"),

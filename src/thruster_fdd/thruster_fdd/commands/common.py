@@ -80,3 +80,33 @@ def check_output(path: Path, option: str, *, folder: bool = False) -> None:
         raise BadInputError(f"{option} {path}: {parent} is a file, not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise BadInputError(f"{option} {path}: cannot write in {parent}")
+
+
+def check_models(models: Path) -> None:
+    """Refuse a models folder whose exported models a node would refuse at start.
+
+    Checks ``models/nominal`` and, when it holds a card, ``models/classifier``: card fields,
+    the SHA-256 of every file the card lists, and that the classifier was made with this
+    nominal model. A node started on them would exit 1 with the same reason; this says it
+    before anything starts, naming the file (exit 2).
+
+    Raises
+    ------
+    ModelMismatchError
+        Naming the file and what is wrong.
+    """
+    from thruster_fdd.core.artifact import CARD_FILE, check_files
+    from thruster_fdd.core.diagnosis.model import read_classifier_card
+    from thruster_fdd.core.errors import ModelMismatchError
+    from thruster_fdd.core.nominal.card import read_nominal_card
+
+    nominal = read_nominal_card(models / "nominal")
+    check_files(models / "nominal", nominal)
+    if (models / "classifier" / CARD_FILE).is_file():
+        classifier = read_classifier_card(models / "classifier")
+        check_files(models / "classifier", classifier)
+        if classifier.nominal_model_id != nominal.model_id:
+            raise ModelMismatchError(
+                f"{models / 'classifier'}: made with nominal model {classifier.nominal_model_id}, "
+                f"not {nominal.model_id} of {models / 'nominal'}"
+            )

@@ -26,10 +26,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK, check_output, positive_float
+from thruster_fdd.commands.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    check_models,
+    check_output,
+    positive_float,
+)
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.atomic import write_text
-from thruster_fdd.core.errors import BadInputError, ModelMismatchError
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.traces.replay_check import ReplayCheck, ThrusterBag, check_replay, load_bag
 from thruster_fdd.lifetime import child_env, node_command, stop_children
 
@@ -331,8 +337,7 @@ def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> dict[str, subpr
 
 def run(args: argparse.Namespace) -> int:
     """Replay ``args.bag`` and check the diagnoses; returns the exit code."""
-    from thruster_fdd.core.artifact import check_files, default_models_dir
-    from thruster_fdd.core.diagnosis.model import read_classifier_card
+    from thruster_fdd.core.artifact import default_models_dir
     from thruster_fdd.core.nominal.card import read_nominal_card
 
     if not args.bag.is_file():
@@ -342,18 +347,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json is not None:
         check_output(args.json, "--json")
     models = (args.models or default_models_dir()).resolve()
-    card = read_nominal_card(models / "nominal")
-    # The nodes would refuse a damaged model at start; say which file here, with exit 2.
-    check_files(models / "nominal", card)
-    if (models / "classifier" / CARD_FILE).is_file():
-        classifier = read_classifier_card(models / "classifier")
-        check_files(models / "classifier", classifier)
-        if classifier.nominal_model_id != card.model_id:
-            raise ModelMismatchError(
-                f"{models / 'classifier'}: made with nominal model {classifier.nominal_model_id}, "
-                f"not {card.model_id} of {models / 'nominal'}"
-            )
-    bags = load_bag(args.bag, card.sample_time_s)
+    check_models(models)
+    bags = load_bag(args.bag, read_nominal_card(models / "nominal").sample_time_s)
     procs = _start_nodes(bags, models)
     try:
         replayer = Replayer(bags, (models / "classifier" / CARD_FILE).is_file())

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from thruster_fdd.commands.common import EXIT_OK, check_output, non_negative_int, positive_float
 from thruster_fdd.core.errors import BadInputError
+
+if TYPE_CHECKING:
+    from thruster_fdd.core.traces.data import Trace
 
 NAME = "train"
 HELP = "train the nominal model or the classifier from traces"
@@ -70,6 +74,36 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
 
 
+MIN_TRACE_S = 10.0
+"""Shortest trace ``train nominal`` takes, s (the lookback is 2 s, then validation and
+training parts of each trace)."""
+
+
+MIN_WINDOW_SAMPLES = 4
+"""Fewest nominal-model samples in a classifier window."""
+
+
+MAX_WINDOW_S = 600.0
+"""Longest classifier window, s."""
+
+
+def _read_long_traces(sources: list[Path]) -> list[Trace]:
+    """The traces of ``sources``; BadInputError naming a file with one shorter than
+    ``MIN_TRACE_S``."""
+    from thruster_fdd.core.traces.files import read_traces, trace_files
+
+    traces = []
+    for file in trace_files(sources):
+        for trace in read_traces([file]):
+            span = float(trace.t[-1] - trace.t[0])
+            if span < MIN_TRACE_S:
+                raise BadInputError(
+                    f"{file}: a trace of {span:g} s; training needs at least {MIN_TRACE_S:g} s"
+                )
+            traces.append(trace)
+    return traces
+
+
 def run(args: argparse.Namespace) -> int:
     """Train and export the model ``args.what``."""
     import torch
@@ -91,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
             k: v for k, v in (("epochs", args.epochs), ("finetune_epochs", args.finetune_epochs))
             if v is not None
         }  # fmt: skip
-        traces = read_traces(args.data)
+        traces = _read_long_traces(args.data)
         card = train_nominal(
             traces,
             args.out,
@@ -116,6 +150,12 @@ def run(args: argparse.Namespace) -> int:
     check_files(args.nominal, read_nominal_card(args.nominal))
     if args.epochs < 1:
         raise BadInputError(f"--epochs must be >= 1, got {args.epochs}")
+    sample_time_s = read_nominal_card(args.nominal).sample_time_s
+    if not MIN_WINDOW_SAMPLES * sample_time_s <= args.window <= MAX_WINDOW_S:
+        raise BadInputError(
+            f"--window must be within {MIN_WINDOW_SAMPLES * sample_time_s:g}..{MAX_WINDOW_S:g} s "
+            f"({MIN_WINDOW_SAMPLES} samples of the nominal model at least), got {args.window:g}"
+        )
     traces = read_traces(args.data)
     config = ClassifierConfig(window_s=args.window, epochs=args.epochs)
     card = train_classifier(

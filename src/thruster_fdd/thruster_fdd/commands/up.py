@@ -25,7 +25,13 @@ from pathlib import Path
 from types import UnionType
 from typing import Any
 
-from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK, positive_float
+from thruster_fdd.commands.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    check_models,
+    check_output,
+    positive_float,
+)
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
@@ -268,6 +274,19 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
     return rate, tuple(by_id[p.id] for p in plans)
 
 
+def _check_inputs(args: argparse.Namespace, plans: tuple[ThrusterPlan, ...], models: Path) -> None:
+    """What the children would fail on, said before they start (exit 2): simulator presets,
+    the recording folder, exported models."""
+    from thruster_fdd.core.sim.config import load_config
+
+    for preset in sorted({p.preset for p in plans if p.port is None}):
+        load_config(preset)
+    if not args.no_record:
+        check_output(args.record_dir, "--record-dir", folder=True)
+    if (models / "nominal" / CARD_FILE).is_file():
+        check_models(models)
+
+
 def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[str]]:
     ns = f"/thruster/{plan.id}"
     port = plan.port or str(run_dir / f"{plan.id}.tty")
@@ -315,6 +334,7 @@ def run(args: argparse.Namespace) -> int:
 
     rate, plans = plan_from_args(args)
     models = (args.models or default_models_dir()).resolve()
+    _check_inputs(args, plans, models)
     run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):

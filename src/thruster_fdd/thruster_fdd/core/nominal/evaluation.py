@@ -23,6 +23,7 @@ from torch import nn
 from tqdm import tqdm
 
 from thruster_fdd.core.atomic import replaced_file
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.nominal.spec import MODES, ModelSpec
@@ -424,7 +425,7 @@ def evaluate_model_on_traces(
         model.mode = saved
     y, p = np.concatenate(ys), np.concatenate(ps)
     if not np.any(np.isfinite(p[:, 0])):
-        raise ValueError(
+        raise BadInputError(
             f"traces are too short: the model needs more than {model.warmup_samples} samples"
         )
     return {

@@ -173,8 +173,19 @@ def write_trace_mcap(traces: Iterable[Trace], path: str | Path) -> None:
         writer.finish()
 
 
-# What decoding a damaged CDR message can raise (the decoder is generated from the schema).
-DECODE_ERRORS = (ValueError, IndexError, KeyError, TypeError, struct.error, UnicodeDecodeError)
+# What decoding a damaged CDR message can raise (the decoder is generated from the schema), or
+# reading a field that another version of the schema does not have.
+DECODE_ERRORS = (
+    ValueError,
+    IndexError,
+    KeyError,
+    TypeError,
+    AttributeError,
+    OverflowError,
+    MemoryError,
+    struct.error,
+    UnicodeDecodeError,
+)
 
 
 def read_trace_mcap(path: str | Path) -> list[Trace]:

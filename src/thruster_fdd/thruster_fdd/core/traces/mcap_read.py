@@ -13,7 +13,10 @@ not start with the MCAP magic, or from which not one message can be read, is ref
 
 from __future__ import annotations
 
+import contextlib
 import io
+import mmap
+import os
 import struct
 import warnings
 import zlib
@@ -70,8 +73,18 @@ _PRIVATE_OPCODES = 0x80
 """Record types from here up are for private use (skipped); below, only the known ones occur."""
 
 
-# What a damaged record can raise while parsing (besides McapError).
-_PARSE_ERRORS = (McapError, struct.error, UnicodeDecodeError, ValueError, KeyError, IndexError)
+# What a damaged record can raise while parsing (besides McapError): a length field far beyond
+# the record gives OverflowError or MemoryError.
+_PARSE_ERRORS = (
+    McapError,
+    struct.error,
+    UnicodeDecodeError,
+    ValueError,
+    KeyError,
+    IndexError,
+    OverflowError,
+    MemoryError,
+)
 
 
 class DamagedRecordingWarning(PartialInputWarning):
@@ -176,12 +189,11 @@ def _describe_start(head: bytes) -> str:
 
 
 def _records(
-    data: bytes | memoryview, start: int, end: int
-) -> tuple[list[tuple[int, int, memoryview]], str]:
+    data: bytes | mmap.mmap, start: int, end: int
+) -> tuple[list[tuple[int, int, bytes]], str]:
     """(offset, opcode, body) of the records in ``data[start:end]`` that fit, and why the walk
     stopped early ('' when it reached ``end``)."""
-    out: list[tuple[int, int, memoryview]] = []
-    view = memoryview(data)
+    out: list[tuple[int, int, bytes]] = []
     pos = start
     while pos < end:
         if end - pos < _RECORD_HEADER.size:
@@ -190,12 +202,43 @@ def _records(
         body_start = pos + _RECORD_HEADER.size
         if length > end - body_start:
             return out, f"a record at byte {pos} runs past the end ({length} bytes declared)"
-        out.append((pos, opcode, view[body_start : body_start + length]))
+        out.append((pos, opcode, bytes(data[body_start : body_start + length])))
         pos = body_start + length
     return out, ""
 
 
-def _parse(opcode: int, body: memoryview) -> Any:
+_FOOTER = struct.Struct("<BQQQI")
+
+
+_SUMMARY_COPIES = frozenset({Opcode.SCHEMA, Opcode.CHANNEL, Opcode.STATISTICS})
+"""Records the summary repeats from the (chunk-checked) data section."""
+
+
+def _damaged_summary(data: bytes | mmap.mmap) -> bool:
+    """Whether the footer's summary CRC fails (False when there is no footer or no CRC). The
+    summary lies outside every chunk, so only its CRC vouches for the schemas, channels and
+    counts it repeats."""
+    end = len(data) - len(MAGIC) - _FOOTER.size
+    if end < len(MAGIC) or data[len(data) - len(MAGIC) :] != MAGIC:
+        return False
+    opcode, length, start, _, crc = _FOOTER.unpack(data[end : end + _FOOTER.size])
+    if opcode != Opcode.FOOTER or length != _FOOTER.size - 9:
+        return True  # a closing magic without a footer before it: nothing vouches for the end
+    if start == 0 or crc == 0:
+        return False  # no summary, or one written without a CRC
+    covered = end + _FOOTER.size - 4  # through summary_offset_start
+    return not len(MAGIC) <= start <= end or _crc32(data, covered, start) != crc
+
+
+def _crc32(data: bytes | mmap.mmap, end: int, start: int = 0) -> int:
+    """CRC-32 of ``data[start:end]``, a MiB at a time (no copy of a whole recording)."""
+    crc = 0
+    for a in range(start, end, 1 << 20):
+        crc = zlib.crc32(data[a : min(end, a + (1 << 20))], crc)
+    return crc
+
+
+def _parse(opcode: int, body: bytes) -> Any:
     parser = _PARSERS.get(opcode)
     if parser is None:
         return None
@@ -288,16 +331,34 @@ def read_mcap(path: str | Path, *, require_messages: bool = True) -> McapContent
         If the file cannot be read.
     """
     path = Path(path)
-    data = path.read_bytes()
+    with path.open("rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        # Mapped, not read: a recording (256 MB by default) costs address space, not a copy.
+        data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
+    try:
+        return _read(path, data, require_messages)
+    finally:
+        if isinstance(data, mmap.mmap):
+            data.close()
+
+
+def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapContents:
+    """``read_mcap`` on the file's bytes."""
     if data[: len(MAGIC)] != MAGIC:
-        if require_messages or not MAGIC.startswith(data):
+        if require_messages or not MAGIC.startswith(data[: len(MAGIC)]):
             raise BadInputError(f"{path}: not an MCAP recording ({_describe_start(data[:40])})")
         problem = f"the file ends early ({len(data)} bytes, inside the magic): the rest is lost"
         return McapContents(path, {}, [], {}, False, (problem,))
     walk = _Walk(path)
+    summary_damaged = _damaged_summary(data)
+    if summary_damaged:
+        walk.problems.append("the summary fails its CRC: its schemas, channels and counts unused")
     records, stopped = _records(data, len(MAGIC), len(data))
     footer_end = None
+    in_summary = False
     for offset, opcode, body in records:
+        if summary_damaged and in_summary and opcode in _SUMMARY_COPIES:
+            continue
         try:
             if not (opcode in _KNOWN_OPCODES or opcode >= _PRIVATE_OPCODES):
                 raise ValueError(f"unknown record type {opcode:#04x}")
@@ -317,7 +378,8 @@ def read_mcap(path: str | Path, *, require_messages: bool = True) -> McapContent
         elif opcode == Opcode.STATISTICS:
             walk.expected = record.message_count
         elif opcode == Opcode.DATA_END:
-            if record.data_section_crc not in (0, zlib.crc32(memoryview(data)[:offset])):
+            in_summary = True
+            if record.data_section_crc not in (0, _crc32(data, offset)):
                 walk.problems.append("the data section fails its CRC")
         elif opcode == Opcode.FOOTER:
             footer_end = offset + _RECORD_HEADER.size + len(body)
@@ -373,7 +435,10 @@ def ros2_decoder(channel: McapChannel) -> Callable[[bytes], Any] | None:
     if channel.schema is None:
         return None
     try:
-        return DecoderFactory().decoder_for(channel.message_encoding, channel.schema)
+        # The vendored rosidl parser prints a line to stderr before raising: keep it off the
+        # user's terminal (the warning says the schema does not parse).
+        with contextlib.redirect_stderr(io.StringIO()):
+            return DecoderFactory().decoder_for(channel.message_encoding, channel.schema)
     except Exception:
         # The schema text is input and its parser raises many kinds: any error means unusable.
         return None
