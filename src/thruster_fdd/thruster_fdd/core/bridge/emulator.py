@@ -437,7 +437,7 @@ class BridgeEmulator:
         if self._reset_pending:
             status |= StatusFlag.RESET
         frame = TelemetryFrame(
-            timestamp_us=int((now - self._boot) * 1e6) % (1 << 32),
+            timestamp_us=int(max(0.0, now - self._boot) * 1e6) % (1 << 32),
             pwm_us=self._pwm_us,
             voltage_v=voltage,
             current_a=sample.current,
