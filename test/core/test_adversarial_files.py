@@ -186,8 +186,9 @@ def read_mcap_bytes(tmp_path: Path, data: bytes) -> McapContents:
 def _chunk_offsets(data: bytes) -> list[int]:
     from thruster_fdd.core.traces.mcap_read import MAGIC, _records
 
-    records, _ = _records(data, len(MAGIC), len(data))
-    return [offset for offset, opcode, _ in records if opcode == 0x06]
+    return [
+        offset for offset, opcode, _ in _records(data, len(MAGIC), len(data), []) if opcode == 0x06
+    ]
 
 
 @pytest.mark.parametrize(

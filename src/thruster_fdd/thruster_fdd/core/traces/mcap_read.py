@@ -3,12 +3,13 @@
 Every tool that reads a recording (``read_trace_mcap``, ``replay_check.load_bag``,
 ``recording.read_recovered``) goes through :func:`read_mcap`. It walks the records itself
 rather than trusting the summary, so a file cut by ``kill -9`` (no footer, no summary) reads up
-to its last complete record; it checks every chunk's CRC and the data section's, skips a chunk
-that fails (its messages are counted from the message indexes behind it) and a record that does
-not parse, and stops where the records no longer fit the file. What was lost is listed in
-``McapContents.problems`` and said in one :class:`DamagedRecordingWarning`. A file that does
-not start with the MCAP magic, or from which not one message can be read, is refused with
-``BadInputError`` (exit 2, one line). No rclpy.
+to its last complete record; it checks every chunk's CRC and size, the data section's CRC when
+one was written and the summary's (a summary that fails is not used), skips a chunk that fails
+(its messages are counted from the message indexes behind it) and a record that does not
+parse, and stops where the records no longer fit the file (mapped, not read into memory).
+What was lost is listed in ``McapContents.problems`` and said in one
+:class:`DamagedRecordingWarning`. A file that does not start with the MCAP magic, or from which
+not one message can be read, is refused with ``BadInputError`` (exit 2, one line). No rclpy.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import os
 import struct
 import warnings
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -130,13 +131,6 @@ class McapContents:
     problems: tuple[str, ...]
     expected_messages: int | None = None
 
-    def topic_messages(
-        self, accept: Callable[[McapChannel], bool]
-    ) -> list[tuple[McapChannel, int, bytes]]:
-        """(channel, log time ns, data) of the messages on channels that ``accept``."""
-        chosen = {cid: ch for cid, ch in self.channels.items() if accept(ch)}
-        return [(chosen[cid], t, data) for cid, t, data in self.messages if cid in chosen]
-
 
 @dataclass
 class _Walk:
@@ -189,22 +183,22 @@ def _describe_start(head: bytes) -> str:
 
 
 def _records(
-    data: bytes | mmap.mmap, start: int, end: int
-) -> tuple[list[tuple[int, int, bytes]], str]:
-    """(offset, opcode, body) of the records in ``data[start:end]`` that fit, and why the walk
-    stopped early ('' when it reached ``end``)."""
-    out: list[tuple[int, int, bytes]] = []
+    data: bytes | mmap.mmap, start: int, end: int, stopped: list[str]
+) -> Iterator[tuple[int, int, bytes]]:
+    """(offset, opcode, body) of the records in ``data[start:end]`` that fit, one at a time
+    (a recording is not copied whole); why the walk stopped early is appended to ``stopped``."""
     pos = start
     while pos < end:
         if end - pos < _RECORD_HEADER.size:
-            return out, f"{end - pos} stray bytes at byte {pos}"
-        opcode, length = _RECORD_HEADER.unpack_from(data, pos)
+            stopped.append(f"{end - pos} stray bytes at byte {pos}")
+            return
+        opcode, length = _RECORD_HEADER.unpack(data[pos : pos + _RECORD_HEADER.size])
         body_start = pos + _RECORD_HEADER.size
         if length > end - body_start:
-            return out, f"a record at byte {pos} runs past the end ({length} bytes declared)"
-        out.append((pos, opcode, bytes(data[body_start : body_start + length])))
+            stopped.append(f"a record at byte {pos} runs past the end ({length} bytes declared)")
+            return
+        yield pos, opcode, bytes(data[body_start : body_start + length])
         pos = body_start + length
-    return out, ""
 
 
 _FOOTER = struct.Struct("<BQQQI")
@@ -280,15 +274,18 @@ def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> None:
         walk.bad_chunks += 1
         walk.lost_span_ns += span_ns
         return
-    records, stopped = _records(data, 0, len(data))
+    stopped: list[str] = []
     parsed = []
     try:
-        parsed = [(opcode, _parse(opcode, body)) for _, opcode, body in records]
+        parsed = [
+            (opcode, _parse(opcode, body))
+            for _, opcode, body in _records(data, 0, len(data), stopped)
+        ]
     except _PARSE_ERRORS as exc:
-        stopped = f"a record does not parse ({type(exc).__name__})"
+        stopped.append(f"a record does not parse ({type(exc).__name__})")
     if stopped:
         # The CRC matched, so the writer itself wrote this: keep nothing of it.
-        walk.problems.append(f"chunk at byte {offset} is malformed: {stopped}")
+        walk.problems.append(f"chunk at byte {offset} is malformed: {stopped[0]}")
         walk.bad_chunks += 1
         walk.lost_span_ns += span_ns
         return
@@ -353,10 +350,10 @@ def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapCo
     summary_damaged = _damaged_summary(data)
     if summary_damaged:
         walk.problems.append("the summary fails its CRC: its schemas, channels and counts unused")
-    records, stopped = _records(data, len(MAGIC), len(data))
+    stopped: list[str] = []
     footer_end = None
     in_summary = False
-    for offset, opcode, body in records:
+    for offset, opcode, body in _records(data, len(MAGIC), len(data), stopped):
         if summary_damaged and in_summary and opcode in _SUMMARY_COPIES:
             continue
         try:
@@ -388,7 +385,7 @@ def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapCo
             _take(walk, opcode, record)
     complete = footer_end is not None and data[footer_end:] == MAGIC
     if footer_end is None:
-        end = stopped or "no footer"
+        end = stopped[0] if stopped else "no footer"
         walk.problems.append(f"the file ends early ({end}; {len(data)} bytes): the rest is lost")
     elif not complete:
         walk.problems.append("the closing magic after the footer is missing or damaged")
