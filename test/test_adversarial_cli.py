@@ -59,6 +59,8 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "seed.yaml").write_text("thrusters: [{id: t0, seed: abc}]\n")
     (d / "list.yaml").write_text("- a\n- b\n")
     (d / "entry.yaml").write_text("thrusters: [5]\n")
+    (d / "keys.yaml").write_text("1: a\nb: c\nthrusters: [{id: t0}]\n")
+    (d / "bigseed.yaml").write_text("thrusters: [{id: t0, seed: 100000000000000000000000}]\n")
     (d / "dupkey.yaml").write_text("rate_hz: 50\nrate_hz: 10\nthrusters: [{id: t0}]\n")
     bomb = "a: &a [x, x, x, x, x, x, x, x, x]\n"
     bomb += "".join(
@@ -117,6 +119,8 @@ BAD_INPUT: list[tuple[str, str]] = [
     ("up --config {w}/list.yaml", "expected a mapping"),
     ("up --config {w}/entry.yaml", "must be a mapping"),
     ("up --config {w}/dupkey.yaml", "repeated"),
+    ("up --config {w}/keys.yaml", "unknown key(s) 1, b"),
+    ("up --config {w}/bigseed.yaml", "seed must be within"),
     ("up --config {w}", "Is a directory"),
     ("up --fault t0:biofouling@nan", "--fault"),
     ("up --fault t0:biofouling@abc", "--fault"),

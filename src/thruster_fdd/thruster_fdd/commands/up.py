@@ -58,6 +58,10 @@ PROTOCOLS = ("tfdd", "kiss")
 """Telemetry formats of a bridge (``esc_driver``'s ``protocol``)."""
 
 
+MAX_SEED = 2**31 - 1
+"""Largest seed: it goes to the command player as a ROS integer parameter."""
+
+
 @dataclass(frozen=True)
 class ThrusterPlan:
     """How one thruster of ``up`` is run.
@@ -100,8 +104,10 @@ class ThrusterPlan:
             raise BadInputError(
                 f"thruster {self.id}: protocol {self.protocol!r} is not one of {known}"
             )
-        if self.seed < 0:
-            raise BadInputError(f"thruster {self.id}: seed must be >= 0, got {self.seed}")
+        if not 0 <= self.seed <= MAX_SEED:
+            raise BadInputError(
+                f"thruster {self.id}: seed must be within 0..{MAX_SEED}, got {self.seed}"
+            )
         for name in ("condition", "fault_condition"):
             value = getattr(self, name)
             if value is not None and value not in CLASS_NAMES:
@@ -178,7 +184,7 @@ def _typed(value: Any, hint: Any, where: str) -> Any:
     if int in options and isinstance(value, int) and not isinstance(value, bool):
         return value
     if float in options and isinstance(value, int | float) and not isinstance(value, bool):
-        return float(value)
+        return float(value) if abs(value) < 1e300 else math.inf  # an int too large for a float
     names = {str: "a string", int: "an integer", float: "a number", type(None): "null"}
     expected = " or ".join(names[t] for t in options)
     raise BadInputError(f"{where} must be {expected}, got {value!r}")
@@ -191,9 +197,9 @@ def _plans_from_config(path: Path, default_rate: float) -> tuple[float, list[Thr
         spec = {}
     if not isinstance(spec, dict):
         raise BadInputError(f"{path}: expected a mapping with rate_hz and thrusters")
-    unknown = sorted(set(spec) - {"rate_hz", "thrusters"})
+    unknown = sorted(set(map(str, spec)) - {"rate_hz", "thrusters"})
     if unknown:
-        raise BadInputError(f"{path}: unknown key(s) {', '.join(map(str, unknown))}")
+        raise BadInputError(f"{path}: unknown key(s) {', '.join(unknown)}")
     rate = _typed(spec.get("rate_hz", default_rate), float, f"{path}: rate_hz")
     entries = spec.get("thrusters")
     if not isinstance(entries, list) or not entries:
