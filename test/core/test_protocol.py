@@ -136,10 +136,11 @@ encoded_frames = st.one_of(
     st.builds(encode_version, version_frames, seqs),
     st.builds(encode_version_query, seqs),
 )
+# A powered ESC reports a voltage: ten 0x00 bytes (0 V) are a stuck line, never a frame.
 kiss_frames = st.builds(
     KissFrame,
     temperature_c=st.floats(0.0, 255.0),
-    voltage_v=st.floats(0.0, 655.0),
+    voltage_v=st.floats(0.01, 655.0),
     current_a=st.floats(0.0, 655.0),
     consumption_mah=st.integers(0, 0xFFFF),
     rpm=st.floats(0.0, 93_000.0),  # the eRPM/100 field's limit with 7 pole pairs

@@ -9,13 +9,15 @@ context spun by a single-threaded executor in the test's thread.
 
 from __future__ import annotations
 
+import math
 import subprocess
 from collections.abc import Mapping
+from typing import Any
 
 from thruster_fdd.lifetime import node_command
 from thruster_fdd.nodes.probe import Probe
 
-__all__ = ["Probe", "start_node"]
+__all__ = ["Probe", "non_finite_fields", "start_node"]
 
 
 def start_node(
@@ -24,3 +26,19 @@ def start_node(
     """Start ``thruster_fdd.nodes.<module>`` in ``namespace`` with parameter overrides, as ``up``
     builds its command line (``lifetime.node_command``)."""
     return subprocess.Popen(node_command(module, namespace, params))
+
+
+def non_finite_fields(msg: Any, prefix: str = "") -> list[str]:
+    """Names of the float fields of a ROS message (nested, sequences included) that are not
+    finite."""
+    bad = []
+    for name, kind in msg.get_fields_and_field_types().items():
+        value = getattr(msg, name)
+        if kind in ("double", "float"):
+            if not math.isfinite(value):
+                bad.append(prefix + name)
+        elif kind.startswith("sequence<double") or kind.startswith("sequence<float"):
+            bad += [f"{prefix}{name}[{i}]" for i, v in enumerate(value) if not math.isfinite(v)]
+        elif hasattr(value, "get_fields_and_field_types"):
+            bad += non_finite_fields(value, f"{prefix}{name}.")
+    return bad

@@ -15,10 +15,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pytest
-from probe import Probe, start_node
+from probe import Probe, non_finite_fields, start_node
 
 from thruster_fdd.core.bridge.emulator import (
     BridgeEmulator,
+    BridgeReset,
     CorruptCrc,
     Disconnect,
     DuplicateFrame,
@@ -26,8 +27,10 @@ from thruster_fdd.core.bridge.emulator import (
     Fault,
     Garbage,
     OutOfRange,
+    ReplayFrames,
     Silence,
     SkipSequence,
+    StuckLine,
     Truncate,
 )
 from thruster_fdd.core.sim.config import load_config
@@ -188,6 +191,8 @@ def _inject_and_watch(rig: Rig, fault: Fault, words: str) -> list[tuple[int, str
         (DuplicateFrame(4), "duplicated"),
         (SkipSequence(7), "7 frames lost"),
         (OutOfRange(3), "implausible"),
+        (ReplayFrames(back=8, count=5), "5 replayed"),
+        (BridgeReset(), "bridge reset 1 time"),
     ],
 )
 def test_link_faults_are_reported_and_never_published(rig: Rig, fault: Fault, words: str) -> None:
@@ -210,6 +215,19 @@ def test_sequence_gap_flags_the_next_sample(rig: Rig) -> None:
     rig.emulator.inject(SkipSequence(3))
     rig.spin_for(0.5)
     assert any(m.status & EscTelemetry.SEQUENCE_GAP for m in rig.telemetry[n0:])
+
+
+def test_stuck_line_is_a_link_error_never_telemetry(rig: Rig) -> None:
+    n_diag = len(rig.diagnostics)
+    rig.emulator.inject(StuckLine(0x00, 2.0))
+    assert rig.spin_until(
+        lambda: any(level == 2 and "stuck low" in m for level, m in rig.diag_messages(n_diag)),
+        3.0,
+    ), rig.diag_messages(n_diag)
+    n0 = len(rig.telemetry)
+    rig.spin_for(0.5)
+    assert all(m.voltage_v > 10.0 for m in rig.telemetry[n0:]), "a stuck line was published"
+    assert rig.spin_until(lambda: len(rig.telemetry) > n0 + 10, 4.0), "no recovery"
 
 
 def test_silent_port_goes_stale_then_recovers(rig: Rig) -> None:
@@ -238,6 +256,12 @@ def test_driver_survived_everything(rig: Rig) -> None:
     n0 = len(rig.telemetry)
     rig.spin_for(1.0)
     assert len(rig.telemetry) - n0 > 0.8 * RATE_HZ
+
+
+def test_every_published_telemetry_field_is_finite(rig: Rig) -> None:
+    """After every link fault above (issue 16: no published field is ever non-finite)."""
+    assert len(rig.telemetry) > 20
+    assert [m.sequence for m in rig.telemetry if non_finite_fields(m)] == []
 
 
 def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:

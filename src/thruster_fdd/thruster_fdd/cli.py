@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Sequence
+from typing import Any, TextIO
 
 from thruster_fdd.commands import (
     diagnose,
@@ -24,7 +26,7 @@ from thruster_fdd.commands import (
     up,
 )
 from thruster_fdd.commands.common import EXIT_BAD_INPUT
-from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.errors import BadInputError, PartialInputWarning
 
 COMMANDS = (simulate, train, evaluate, diagnose, discrepancy, replay, up, record, reload, emulate)
 """The subcommand modules, in the order ``--help`` lists them."""
@@ -59,9 +61,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warnings(command: str) -> None:
+    """Print a ``PartialInputWarning`` as one line naming the subcommand; others as usual."""
+    default = warnings.showwarning
+
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: TextIO | None = None,
+        line: str | None = None,
+    ) -> Any:
+        if issubclass(category, PartialInputWarning):
+            print(f"thruster-fdd {command}: warning: {message}", file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``thruster-fdd``; returns the process exit code."""
     args = build_parser().parse_args(argv)
+    _one_line_warnings(args.command)
     try:
         return int(args.run(args))
     except BadInputError as exc:

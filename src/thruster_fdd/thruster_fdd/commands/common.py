@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import math
+import os
+from pathlib import Path
+
+from thruster_fdd.core.errors import BadInputError
 
 EXIT_OK = 0
 """Success."""
@@ -23,3 +28,103 @@ def positive_float(text: str) -> float:
     if not 0 < value < float("inf"):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
     return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (seeds, counts)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number (times, offsets)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
+
+
+def check_output(path: Path, option: str, *, folder: bool = False) -> None:
+    """Refuse an output path that cannot be written, before any work is done.
+
+    Parameters
+    ----------
+    path : Path
+        The file (or, with ``folder``, the folder) a command will write.
+    option : str
+        The option that named it, for the message (``--out``).
+    folder : bool
+        Whether ``path`` is a folder.
+
+    Raises
+    ------
+    BadInputError
+        If ``path`` exists as the other kind (a folder for a file, a file for a folder), or its
+        nearest existing parent is not a writable folder.
+    """
+    if path.exists() and path.is_dir() != folder:
+        kind = "a folder" if path.is_dir() else "a file"
+        raise BadInputError(f"{option} {path}: exists and is {kind}")
+    parent = path.parent.absolute()
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise BadInputError(f"{option} {path}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise BadInputError(f"{option} {path}: cannot write in {parent}")
+
+
+def check_models(models: Path) -> None:
+    """Refuse a models folder whose exported models a node would refuse at start.
+
+    Checks ``models/nominal`` (every card field) and, when it holds a card,
+    ``models/classifier``: the SHA-256 of every file each card lists, and that the classifier
+    was made with this nominal model. A node started on them would exit 1 with the same reason;
+    this says it before anything starts, naming the file (exit 2). The classifier card's other
+    fields are left to the node: checking them here would import the classifier's compiled
+    code (about a second, on every ``up``).
+
+    Raises
+    ------
+    ModelMismatchError
+        Naming the file and what is wrong.
+    """
+    import json
+
+    from thruster_fdd.core.artifact import CARD_FILE, check_files, file_sha256
+    from thruster_fdd.core.errors import ModelMismatchError
+    from thruster_fdd.core.nominal.card import read_nominal_card
+
+    nominal = read_nominal_card(models / "nominal")
+    check_files(models / "nominal", nominal)
+    card = models / "classifier" / CARD_FILE
+    if not card.is_file():
+        return
+    try:
+        raw = json.loads(card.read_text())
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ModelMismatchError(f"{card}: not valid JSON ({exc})") from exc
+    files = raw.get("files") if isinstance(raw, dict) else None
+    if not isinstance(files, dict) or not files:
+        raise ModelMismatchError(f"{card}: lists no files with their SHA-256")
+    for name, digest in files.items():
+        path = card.parent / str(name)
+        if Path(str(name)).name != name or not path.is_file():
+            raise ModelMismatchError(f"{path}: missing (or not a file name)")
+        if file_sha256(path) != digest:
+            raise ModelMismatchError(
+                f"{path}: SHA-256 differs from the one {CARD_FILE} records (changed or damaged)"
+            )
+    if raw.get("nominal_model_id") != nominal.model_id:
+        raise ModelMismatchError(
+            f"{card.parent}: made with nominal model {raw.get('nominal_model_id')}, not "
+            f"{nominal.model_id} of {models / 'nominal'}"
+        )

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from thruster_fdd.commands.common import EXIT_OK
+from thruster_fdd.commands.common import EXIT_OK, check_output
 from thruster_fdd.core.errors import BadInputError
 
 NAME = "discrepancy"
@@ -20,6 +20,10 @@ DESCRIPTION = (
 )
 
 
+MAX_WORKERS = 64
+"""Most worker processes (each holds a copy of the data and a compiled free run)."""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd discrepancy``."""
     p.add_argument("--measured", type=Path, required=True, metavar="TRACE",
@@ -29,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--drop", action="append", default=[], metavar="EFFECT",
                    help="remove this effect from the start (repeatable)")  # fmt: skip
     p.add_argument("--out", type=Path, required=True, metavar="DIR")
-    p.add_argument("--workers", type=int, default=2, help="processes for candidate re-fits")
+    p.add_argument("--workers", type=int, default=2, help="processes for candidate re-fits (1-64)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -42,10 +46,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.measured.is_dir() or not args.measured.is_file():
         raise BadInputError(f"--measured {args.measured}: no such trace file")
-    if args.workers < 1:
-        raise BadInputError(f"--workers must be >= 1, got {args.workers}")
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"--out {args.out}: exists and is not a folder")
+    if not 1 <= args.workers <= MAX_WORKERS:
+        raise BadInputError(f"--workers must be within 1..{MAX_WORKERS}, got {args.workers}")
+    check_output(args.out, "--out", folder=True)
     source = load_config(args.start)
     traces = read_traces([args.measured])
     if len(traces) > 1:

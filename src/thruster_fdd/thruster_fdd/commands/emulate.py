@@ -8,7 +8,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from thruster_fdd.commands.common import EXIT_OK, positive_float
+from thruster_fdd.commands.common import EXIT_OK, finite_float, non_negative_int, positive_float
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
 from thruster_fdd.lifetime import stop_with_parent
@@ -18,8 +18,9 @@ HELP = "serve a simulated thruster's serial bridge on a pseudo-terminal"
 DESCRIPTION = (
     "Serve one simulated thruster's serial bridge on a pseudo-terminal, in real time, at the "
     "given link path (a symlink to the tty), until Ctrl-C. The ESC driver node opens the link "
-    "as it opens a real serial adapter. --bridge firmware runs the bridge's real firmware "
-    "(firmware/) on an emulated ATmega328P instead of the Python emulator."
+    "as it opens a real serial adapter. Only a symlink is ever replaced at the link path. "
+    "--bridge firmware runs the bridge's real firmware (firmware/) on an emulated ATmega328P "
+    "instead of the Python emulator."
 )
 BRIDGES = ("python", "firmware")
 """What serves a simulated thruster's bridge: the Python emulator or the firmware co-simulation."""
@@ -27,13 +28,18 @@ BRIDGES = ("python", "firmware")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd emulate``."""
-    p.add_argument("--link", type=Path, required=True, help="path of the port symlink to create")
+    p.add_argument(
+        "--link",
+        type=Path,
+        required=True,
+        help="path of the port symlink to create (an existing file there is refused)",
+    )
     p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
     p.add_argument("--condition", default="nominal_15v", choices=CLASS_NAMES)
     p.add_argument(
         "--voltage", type=positive_float, help="supply voltage, V (default: the condition's)"
     )
-    p.add_argument("--rate", type=positive_float, default=50.0, help="telemetry rate, Hz")
+    p.add_argument("--rate", type=positive_float, default=50.0, help="telemetry rate, Hz (1-1000)")
     p.add_argument("--protocol", default="tfdd", choices=("tfdd", "kiss"))
     p.add_argument(
         "--bridge",
@@ -47,8 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="hott",
         help="with --bridge firmware: the ESC telemetry the firmware reads (its build variant)",
     )
-    p.add_argument("--seed", type=int, default=0, help="simulator seed")
-    p.add_argument("--fault-at", type=float, metavar="S", help="time of the fault after start, s")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="simulator seed")
+    p.add_argument(
+        "--fault-at", type=finite_float, metavar="S", help="time of the fault after start, s"
+    )
     p.add_argument("--fault-condition", choices=CLASS_NAMES, help="condition after --fault-at")
 
 
@@ -58,26 +66,29 @@ def run(args: argparse.Namespace) -> int:
     from thruster_fdd.core.sim.config import load_config
     from thruster_fdd.core.sim.physics import ThrusterSimulator
 
+    if (args.fault_at is None) != (args.fault_condition is None):
+        raise BadInputError("--fault-at and --fault-condition go together: give both or neither")
+    if args.fault_at is not None and args.fault_at < 0:
+        raise BadInputError(f"--fault-at must be >= 0 s, got {args.fault_at}")
+    settings = EmulatorSettings(rate_hz=args.rate, protocol=args.protocol)
     simulator = ThrusterSimulator(
         load_config(args.preset), args.condition, voltage=args.voltage, seed=args.seed
     )
     if args.bridge == "firmware":
         emulator, fault_type, served_by = _firmware_bridge(args, simulator)
     else:
-        emulator = BridgeEmulator(
-            simulator, args.link, EmulatorSettings(rate_hz=args.rate, protocol=args.protocol)
-        )
+        emulator = BridgeEmulator(simulator, args.link, settings)
         fault_type, served_by = SetCondition, ""
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     stop_with_parent()
+    device = emulator.open()
     if args.fault_at is not None and args.fault_condition is not None:
         fault = fault_type(args.fault_condition)
         timer = threading.Timer(args.fault_at, emulator.inject, (fault,))
         timer.daemon = True
         timer.start()
-    device = emulator.open()
     print(
         f"emulating {args.condition} ({args.preset}) on {device} via {args.link}{served_by}",
         flush=True,

@@ -6,7 +6,12 @@ import argparse
 import json
 from pathlib import Path
 
-from thruster_fdd.commands.common import EXIT_OK
+from thruster_fdd.commands.common import (
+    EXIT_OK,
+    check_output,
+    non_negative_int,
+    positive_float,
+)
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.errors import BadInputError
 
@@ -49,12 +54,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="classifier: the nominal model that makes the residuals",
     )
-    p.add_argument("--seed", type=int, default=0, help="classifier: seed (shifts unseen units)")
-    p.add_argument("--seeds", type=int, default=3, help="Table 2: repeated runs (seeds 0..N-1)")
-    p.add_argument("--rate", type=float, default=10.0, help="Table 2: sample rate, Hz")
-    p.add_argument("--train-samples", type=int, default=2000, help="Table 2")
-    p.add_argument("--test-samples", type=int, default=1000, help="Table 2")
-    p.add_argument("--epochs", type=int, help="Table 2: one-step epochs (default: training's)")
+    p.add_argument(
+        "--seed", type=non_negative_int, default=0, help="classifier: seed (shifts unseen units)"
+    )
+    p.add_argument(
+        "--seeds", type=int, default=3, help="Table 2: repeated runs (seeds 0..N-1), 1..100"
+    )
+    p.add_argument("--rate", type=positive_float, default=10.0, help="Table 2: sample rate, Hz")
+    p.add_argument("--train-samples", type=int, default=2000, help="Table 2, 100..1000000")
+    p.add_argument("--test-samples", type=int, default=1000, help="Table 2, 100..1000000")
+    p.add_argument(
+        "--epochs", type=non_negative_int, help="Table 2: one-step epochs (default: training's)"
+    )
     p.add_argument("--no-sysidentpy", action="store_true", help="Table 2: skip the peer")
     p.add_argument("--no-plots", action="store_true", help="Table 2: skip the figures")
 
@@ -63,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate ``args.target``."""
     import torch
 
+    if args.json is not None:
+        check_output(args.json, "--json")
+    if args.out is not None:
+        check_output(args.out, "--out", folder=True)
     torch.set_num_threads(1)
     if args.target == "classifier":
         return _classifier(args)
@@ -94,8 +109,14 @@ def _table2(args: argparse.Namespace) -> int:
     from thruster_fdd.core.nominal import evaluation as ev
 
     out = args.out if args.out is not None else Path("out/table2")
-    if args.seeds < 1 or args.train_samples < 100 or args.test_samples < 100:
-        raise BadInputError("need --seeds >= 1 and --train-samples, --test-samples >= 100")
+    if not (
+        1 <= args.seeds <= 100
+        and 100 <= args.train_samples <= 1_000_000
+        and 100 <= args.test_samples <= 1_000_000
+    ):
+        raise BadInputError(
+            "need --seeds within 1..100 and --train-samples, --test-samples within 100..1000000"
+        )
     cfg = ev.ProtocolConfig(
         rate_hz=args.rate,
         train_samples=args.train_samples,

@@ -26,7 +26,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK
+from thruster_fdd.commands.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    check_models,
+    check_output,
+    positive_float,
+)
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.errors import BadInputError
@@ -67,7 +73,9 @@ STAGES = (("nominal_model", "nominal"), ("classifier", "classifier"))
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd replay``."""
     p.add_argument("bag", type=Path, metavar="BAG", help="MCAP recording")
-    p.add_argument("--rate", type=float, help="rate factor (default: as fast as possible)")
+    p.add_argument(
+        "--rate", type=positive_float, help="rate factor, > 0 (default: as fast as possible)"
+    )
     p.add_argument("--models", type=Path, help="folder with nominal/ and classifier/")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the result as JSON")
     p.add_argument(
@@ -334,7 +342,12 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.bag.is_file():
         raise BadInputError(f"{args.bag}: no such recording")
+    if not 0.0 <= args.min_agreement <= 1.0:
+        raise BadInputError(f"--min-agreement must be within 0..1, got {args.min_agreement}")
+    if args.json is not None:
+        check_output(args.json, "--json")
     models = (args.models or default_models_dir()).resolve()
+    check_models(models)
     bags = load_bag(args.bag, read_nominal_card(models / "nominal").sample_time_s)
     procs = _start_nodes(bags, models)
     try:

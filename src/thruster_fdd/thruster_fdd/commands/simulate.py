@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from thruster_fdd.commands.common import EXIT_OK, positive_float
+from thruster_fdd.commands.common import (
+    EXIT_OK,
+    check_output,
+    finite_float,
+    non_negative_int,
+    positive_float,
+)
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
 
@@ -14,8 +20,12 @@ HELP = "write simulated thruster traces (CSV or MCAP)"
 DESCRIPTION = (
     "Run the physics simulator of one thruster and write its telemetry as a trace CSV or an MCAP "
     "recording (topic /thruster/<id>/esc/telemetry). The simulator configuration is a preset or "
-    "a YAML file (docs/simulator.md)."
+    "a YAML file (docs/simulator.md). At most 10 million samples (--duration x --rate)."
 )
+
+
+MAX_SAMPLES = 10_000_000
+"""Most samples one run writes (28 h at 100 Hz; about 1 GB of CSV): a bound on memory."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -29,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--fault-at",
-        type=float,
+        type=finite_float,
         metavar="S",
         help="switch to --fault-condition at this time in s (fault injection mid-run)",
     )
@@ -47,7 +57,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--duration", type=positive_float, default=60.0, help="duration in s")
     p.add_argument("--rate", type=positive_float, default=10.0, help="sample rate in Hz")
-    p.add_argument("--seed", type=int, default=0, help="seed: noise and unit-to-unit spread")
+    p.add_argument(
+        "--seed", type=non_negative_int, default=0, help="seed: noise and unit-to-unit spread"
+    )
     p.add_argument("--thruster-id", default="t0", help="thruster id written with the trace")
     p.add_argument("--out", type=Path, required=True, help="output file, .csv or .mcap")
 
@@ -59,6 +71,21 @@ def run(args: argparse.Namespace) -> int:
 
     if args.out.suffix not in (".csv", ".mcap"):
         raise BadInputError(f"--out must end in .csv or .mcap, got {args.out}")
+    check_output(args.out, "--out")
+    samples = args.duration * args.rate
+    if samples > MAX_SAMPLES:
+        raise BadInputError(
+            f"--duration {args.duration:g} s at --rate {args.rate:g} Hz is {samples:.3g} samples; "
+            f"at most {MAX_SAMPLES:.0e} per run (split it into several runs)"
+        )
+    if args.fault_at is not None and not 0.0 <= args.fault_at < args.duration:
+        raise BadInputError(
+            f"--fault-at {args.fault_at:g} s must lie within the run, 0..{args.duration:g} s"
+        )
+    if args.command_csv is not None and not args.command_csv.is_file():
+        raise BadInputError(f"--command-csv {args.command_csv}: no such file")
+    if not args.thruster_id.isidentifier():
+        raise BadInputError(f"--thruster-id {args.thruster_id!r} must be a ROS name token like t0")
     trace = run_scenario(
         args.config if args.config is not None else args.preset,
         args.condition,

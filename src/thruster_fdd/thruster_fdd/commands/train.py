@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from thruster_fdd.commands.common import EXIT_OK, positive_float
+from thruster_fdd.commands.common import EXIT_OK, check_output, non_negative_int, positive_float
 from thruster_fdd.core.errors import BadInputError
+
+if TYPE_CHECKING:
+    from thruster_fdd.core.traces.data import Trace
 
 NAME = "train"
 HELP = "train the nominal model or the classifier from traces"
@@ -31,7 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     n.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
     n.add_argument("--out", type=Path, default=Path("models/nominal"), metavar="DIR")
-    n.add_argument("--seed", type=int, default=0, help="seed of initialisation and shuffling")
+    n.add_argument(
+        "--seed", type=non_negative_int, default=0, help="seed of initialisation and shuffling"
+    )
     n.add_argument(
         "--mode",
         choices=["parallel", "series-parallel"],
@@ -39,9 +45,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="NARX configuration the node uses for residuals (and trains for)",
     )
     n.add_argument("--validation-fraction", type=float, default=0.2, metavar="F")
-    n.add_argument("--epochs", type=int, help="one-step epochs (default: the mode's default)")
     n.add_argument(
-        "--finetune-epochs", type=int, help="free-run epochs, parallel (default: the mode's)"
+        "--epochs", type=non_negative_int, help="one-step epochs (default: the mode's default)"
+    )
+    n.add_argument(
+        "--finetune-epochs",
+        type=non_negative_int,
+        help="free-run epochs, parallel (default: the mode's)",
     )
     c = what.add_parser(
         "classifier",
@@ -59,14 +69,39 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     c.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
     c.add_argument("--nominal", type=Path, default=Path("models/nominal"), metavar="DIR")
     c.add_argument("--out", type=Path, default=Path("models/classifier"), metavar="DIR")
-    c.add_argument("--seed", type=int, default=0, help="seed of initialisation")
+    c.add_argument("--seed", type=non_negative_int, default=0, help="seed of initialisation")
     c.add_argument("--window", type=positive_float, default=20.0, help="window length, s")
     c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
 
 
-def _check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise BadInputError(f"--out {out}: exists and is not a folder")
+MIN_TRACE_S = 10.0
+"""Shortest trace ``train nominal`` takes, s (the lookback is 2 s, then validation and
+training parts of each trace)."""
+
+
+MIN_WINDOW_SAMPLES = 4
+"""Fewest nominal-model samples in a classifier window."""
+
+
+MAX_WINDOW_S = 600.0
+"""Longest classifier window, s."""
+
+
+def _read_long_traces(sources: list[Path]) -> list[Trace]:
+    """The traces of ``sources``; BadInputError naming a file with one shorter than
+    ``MIN_TRACE_S``."""
+    from thruster_fdd.core.traces.files import read_traces, trace_files
+
+    traces = []
+    for file in trace_files(sources):
+        for trace in read_traces([file]):
+            span = float(trace.t[-1] - trace.t[0])
+            if span < MIN_TRACE_S:
+                raise BadInputError(
+                    f"{file}: a trace of {span:g} s; training needs at least {MIN_TRACE_S:g} s"
+                )
+            traces.append(trace)
+    return traces
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,7 +110,9 @@ def run(args: argparse.Namespace) -> int:
 
     from thruster_fdd.core.traces.files import file_digests, read_traces
 
-    _check_out(args.out)
+    check_output(args.out, "--out", folder=True)
+    if args.out.resolve() in {Path(d).resolve() for d in args.data}:
+        raise BadInputError(f"--out {args.out} is also a --data folder; it would be replaced")
     torch.set_num_threads(1)
     if args.what == "nominal":
         from thruster_fdd.core.nominal.training import default_config, train_nominal
@@ -88,9 +125,7 @@ def run(args: argparse.Namespace) -> int:
             k: v for k, v in (("epochs", args.epochs), ("finetune_epochs", args.finetune_epochs))
             if v is not None
         }  # fmt: skip
-        if any(v < 0 for v in changes.values()):
-            raise BadInputError("--epochs and --finetune-epochs must be >= 0")
-        traces = read_traces(args.data)
+        traces = _read_long_traces(args.data)
         card = train_nominal(
             traces,
             args.out,
@@ -106,10 +141,21 @@ def run(args: argparse.Namespace) -> int:
             f"rpm r2 {m['rpm_r2']:.4f}, current r2 {m['current_r2']:.4f}"
         )
         return EXIT_OK
+    from thruster_fdd.core.artifact import check_files
     from thruster_fdd.core.diagnosis.training import ClassifierConfig, train_classifier
+    from thruster_fdd.core.nominal.card import read_nominal_card
 
+    if args.out.resolve() == args.nominal.resolve():
+        raise BadInputError(f"--out {args.out} is the --nominal model; it would be replaced")
+    check_files(args.nominal, read_nominal_card(args.nominal))
     if args.epochs < 1:
         raise BadInputError(f"--epochs must be >= 1, got {args.epochs}")
+    sample_time_s = read_nominal_card(args.nominal).sample_time_s
+    if not MIN_WINDOW_SAMPLES * sample_time_s <= args.window <= MAX_WINDOW_S:
+        raise BadInputError(
+            f"--window must be within {MIN_WINDOW_SAMPLES * sample_time_s:g}..{MAX_WINDOW_S:g} s "
+            f"({MIN_WINDOW_SAMPLES} samples of the nominal model at least), got {args.window:g}"
+        )
     traces = read_traces(args.data)
     config = ClassifierConfig(window_s=args.window, epochs=args.epochs)
     card = train_classifier(

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -18,17 +19,25 @@ import sys
 import tempfile
 import threading
 import time
+import typing
 from dataclasses import dataclass
 from pathlib import Path
+from types import UnionType
 from typing import Any
 
-import yaml
-
-from thruster_fdd.commands.common import EXIT_FAILED, EXIT_OK
+from thruster_fdd.commands.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    check_models,
+    check_output,
+    positive_float,
+)
 from thruster_fdd.commands.emulate import BRIDGES
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.safe_yaml import load_yaml
+from thruster_fdd.core.sim.signals import make_signal
 from thruster_fdd.lifetime import child_env, node_command, stop_children, stop_with_parent
 
 NAME = "up"
@@ -40,6 +49,18 @@ DESCRIPTION = (
     "A recorder writes every topic to MCAP. "
     "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent)."
 )
+
+
+MAX_THRUSTERS = 16
+"""Most thrusters ``up`` starts (each is 3-4 processes on this machine)."""
+
+
+PROTOCOLS = ("tfdd", "kiss")
+"""Telemetry formats of a bridge (``esc_driver``'s ``protocol``)."""
+
+
+MAX_SEED = 2**31 - 1
+"""Largest seed: it goes to the command player as a ROS integer parameter."""
 
 
 @dataclass(frozen=True)
@@ -83,6 +104,15 @@ class ThrusterPlan:
     def __post_init__(self) -> None:
         if not self.id.isidentifier():
             raise BadInputError(f"thruster id {self.id!r} must be a ROS name token like t0")
+        if self.protocol not in PROTOCOLS:
+            known = ", ".join(PROTOCOLS)
+            raise BadInputError(
+                f"thruster {self.id}: protocol {self.protocol!r} is not one of {known}"
+            )
+        if not 0 <= self.seed <= MAX_SEED:
+            raise BadInputError(
+                f"thruster {self.id}: seed must be within 0..{MAX_SEED}, got {self.seed}"
+            )
         for name in ("condition", "fault_condition"):
             value = getattr(self, name)
             if value is not None and value not in CLASS_NAMES:
@@ -95,6 +125,11 @@ class ThrusterPlan:
             raise BadInputError(
                 f"thruster {self.id}: bridge firmware is for simulated thrusters (no port) and "
                 "speaks tfdd"
+            )
+        if self.fault_at_s is not None and not 0.0 <= self.fault_at_s < math.inf:
+            raise BadInputError(
+                f"thruster {self.id}: fault time must be a finite number >= 0 s, got "
+                f"{self.fault_at_s}"
             )
 
 
@@ -109,10 +144,14 @@ class ModelStage:
 MODEL_STAGES = (ModelStage("nominal_model", "nominal"), ModelStage("classifier", "classifier"))
 
 
+PLAYER_RATE_HZ = 20.0
+"""The command player's publishing rate (its ``rate_hz`` default), to check signal specs."""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd up``."""
     p.add_argument("--config", type=Path, help="YAML with rate_hz and a thrusters: list")
-    p.add_argument("--thrusters", type=int, default=1, help="number of simulated thrusters")
+    p.add_argument("--thrusters", type=int, default=1, help="number of simulated thrusters (1-16)")
     p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
     p.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz (10-100)")
     p.add_argument("--signal", default="mission", help="command signal of simulated thrusters")
@@ -130,8 +169,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="ID:CONDITION@S",
         help="inject a condition into a simulated thruster at S seconds, e.g. t0:broken_blade_1@20",
     )
-    p.add_argument("--duration", type=float, help="stop after this many seconds (default: Ctrl-C)")
-    p.add_argument("--print-period", type=float, default=2.0, help="table refresh period, s")
+    p.add_argument(
+        "--duration", type=positive_float, help="stop after this many seconds (default: Ctrl-C)"
+    )
+    p.add_argument(
+        "--print-period", type=positive_float, default=2.0, help="table refresh period, s"
+    )
     p.add_argument(
         "--record-dir",
         type=Path,
@@ -147,25 +190,93 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _typed(value: Any, hint: Any, where: str) -> Any:
+    """``value`` from YAML as a ``ThrusterPlan`` field of type ``hint`` (str, int, float or
+    one of them or None); BadInputError naming ``where`` when it is not."""
+    options = (
+        typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, UnionType) else (hint,)
+    )
+    if value is None and type(None) in options:
+        return None
+    if str in options and isinstance(value, str):
+        return value
+    if int in options and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if float in options and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value) if abs(value) < 1e300 else math.inf  # an int too large for a float
+    names = {str: "a string", int: "an integer", float: "a number", type(None): "null"}
+    expected = " or ".join(names[t] for t in options)
+    raise BadInputError(f"{where} must be {expected}, got {value!r}")
+
+
+def _plans_from_config(
+    path: Path, default_rate: float, default_bridge: str
+) -> tuple[float, list[ThrusterPlan]]:
+    """The telemetry rate and thrusters of an ``up --config`` file (``config/up.yaml``); a
+    simulated thruster's bridge is ``default_bridge`` unless its entry says."""
+    spec = load_yaml(path.read_text(encoding="utf-8", errors="replace"), str(path))
+    if spec is None:
+        spec = {}
+    if not isinstance(spec, dict):
+        raise BadInputError(f"{path}: expected a mapping with rate_hz and thrusters")
+    unknown = sorted(set(map(str, spec)) - {"rate_hz", "thrusters"})
+    if unknown:
+        raise BadInputError(f"{path}: unknown key(s) {', '.join(unknown)}")
+    rate = _typed(spec.get("rate_hz", default_rate), float, f"{path}: rate_hz")
+    entries = spec.get("thrusters")
+    if not isinstance(entries, list) or not entries:
+        raise BadInputError(f"{path}: needs a non-empty 'thrusters:' list")
+    hints = typing.get_type_hints(ThrusterPlan)
+    plans = []
+    for i, entry in enumerate(entries):
+        where = f"{path}: thrusters[{i}]"
+        if not isinstance(entry, dict):
+            raise BadInputError(f"{where} must be a mapping like {{id: t0}}, got {entry!r}")
+        unknown = sorted(set(map(str, entry)) - set(hints))
+        if unknown:
+            raise BadInputError(f"{where}: unknown key(s) {', '.join(unknown)}")
+        if "id" not in entry:
+            raise BadInputError(f"{where}: needs an id")
+        values = {k: _typed(v, hints[k], f"{where}.{k}") for k, v in entry.items()}
+        defaults = {} if "port" in values else {"bridge": default_bridge}
+        plans.append(ThrusterPlan(**(defaults | values)))
+    return rate, plans
+
+
+def _fault(text: str, ids: set[str]) -> tuple[str, str, float]:
+    """(id, condition, time s) of a ``--fault ID:CONDITION@S``."""
+    tid, _, rest = text.partition(":")
+    condition, _, at = rest.partition("@")
+    try:
+        at_s = float(at)
+    except ValueError:
+        at_s = math.nan
+    if tid not in ids or not condition or not 0.0 <= at_s < math.inf:
+        raise BadInputError(
+            f"--fault {text!r}: expected ID:CONDITION@SECONDS with a known id and a finite "
+            f"time >= 0 (ids: {', '.join(sorted(ids))})"
+        )
+    return tid, condition, at_s
+
+
 def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan, ...]]:
-    """The telemetry rate and the thrusters to run, from ``up``'s options or its --config."""
+    """The telemetry rate and the thrusters to run, from ``up``'s options or its --config.
+
+    Raises
+    ------
+    BadInputError
+        Naming the option or the config file's entry that is wrong: a config that is not plain
+        YAML (``core.safe_yaml``), a value of the wrong type, an unknown key, condition,
+        protocol or signal, a rate outside 1..1000 Hz, more than ``MAX_THRUSTERS`` thrusters,
+        repeated ids, a malformed ``--fault``.
+    """
     if args.config is not None:
-        spec: dict[str, Any] = yaml.safe_load(Path(args.config).read_text()) or {}
-        rate = float(spec.get("rate_hz", args.rate))
-        entries = spec.get("thrusters")
-        if not isinstance(entries, list) or not entries:
-            raise BadInputError(f"{args.config}: needs a non-empty 'thrusters:' list")
-        known = set(ThrusterPlan.__dataclass_fields__)
-        plans = []
-        for entry in entries:
-            unknown = set(entry) - known
-            if unknown:
-                raise BadInputError(f"{args.config}: unknown thruster key(s) {sorted(unknown)}")
-            defaults = {} if "port" in entry else {"bridge": args.bridge}
-            plans.append(ThrusterPlan(**(defaults | entry)))
+        rate, plans = _plans_from_config(Path(args.config), args.rate, args.bridge)
     else:
-        if args.thrusters < 1:
-            raise BadInputError("--thrusters must be >= 1")
+        if not 1 <= args.thrusters <= MAX_THRUSTERS:
+            raise BadInputError(
+                f"--thrusters must be within 1..{MAX_THRUSTERS}, got {args.thrusters}"
+            )
         rate = args.rate
         plans = [
             ThrusterPlan(
@@ -180,18 +291,36 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
         raise BadInputError(
             f"the firmware bridge sends 10..100 whole Hz of telemetry, got {rate:g}"
         )
+    if len(plans) > MAX_THRUSTERS:
+        raise BadInputError(f"at most {MAX_THRUSTERS} thrusters, got {len(plans)}")
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise BadInputError("thruster ids must be unique")
     for text in args.fault:
-        tid, _, rest = text.partition(":")
-        condition, _, at = rest.partition("@")
-        if tid not in by_id or not at:
-            raise BadInputError(f"--fault {text!r}: expected ID:CONDITION@SECONDS with a known id")
+        tid, condition, at_s = _fault(text, set(by_id))
         by_id[tid] = ThrusterPlan(
-            **{**by_id[tid].__dict__, "fault_at_s": float(at), "fault_condition": condition}
+            **{**by_id[tid].__dict__, "fault_at_s": at_s, "fault_condition": condition}
         )
+    for plan in by_id.values():
+        if plan.port is None:
+            try:
+                make_signal(plan.signal, 1.0, PLAYER_RATE_HZ)
+            except BadInputError as exc:
+                raise BadInputError(f"thruster {plan.id}: signal: {exc}") from None
     return rate, tuple(by_id[p.id] for p in plans)
+
+
+def _check_inputs(args: argparse.Namespace, plans: tuple[ThrusterPlan, ...], models: Path) -> None:
+    """What the children would fail on, said before they start (exit 2): simulator presets,
+    the recording folder, exported models."""
+    from thruster_fdd.core.sim.config import load_config
+
+    for preset in sorted({p.preset for p in plans if p.port is None}):
+        load_config(preset)
+    if not args.no_record:
+        check_output(args.record_dir, "--record-dir", folder=True)
+    if (models / "nominal" / CARD_FILE).is_file():
+        check_models(models)
 
 
 def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[str]]:
@@ -247,6 +376,7 @@ def run(args: argparse.Namespace) -> int:
         # Once here rather than in every emulator at once.
         ensure_built("hott")
     models = (args.models or default_models_dir()).resolve()
+    _check_inputs(args, plans, models)
     run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):

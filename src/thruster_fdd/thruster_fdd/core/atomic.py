@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
+import secrets
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -19,6 +20,11 @@ from pathlib import Path
 
 _AT_FDCWD = -100
 _RENAME_EXCHANGE = 2
+
+
+def _beside(path: Path, suffix: str) -> Path:
+    """A fresh hidden name in ``path``'s folder (random, so two writers never collide)."""
+    return path.with_name(f".{path.name}.{secrets.token_hex(6)}{suffix}")
 
 
 def _fsync_dir(path: Path) -> None:
@@ -39,9 +45,9 @@ def replaced_file(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp = _beside(path, ".tmp")
+    # Not mkstemp: its 0600 would make every output unreadable to other users; 0666 & ~umask.
+    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
     try:
         yield tmp
         with tmp.open("rb+") as f:
@@ -91,7 +97,8 @@ def replaced_dir(path: str | Path) -> Iterator[Path]:
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{path}: exists and is not a folder")
     path.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    stage = _beside(path, ".tmp")
+    stage.mkdir(0o777)  # not mkdtemp's 0700: a model folder must stay readable (umask applies)
     try:
         yield stage
         for child in stage.iterdir():

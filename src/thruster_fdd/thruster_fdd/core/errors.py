@@ -15,3 +15,8 @@ class BadInputError(ValueError):
 class ModelMismatchError(BadInputError):
     """An exported model does not fit: missing or corrupt files, another kind, a card that
     disagrees with its program, or a classifier made with another nominal model."""
+
+
+class PartialInputWarning(UserWarning):
+    """An input was used only in part (a damaged recording, samples left out); the text says
+    what was left out and how much. The command line prints it as one line."""

@@ -33,6 +33,7 @@ from thruster_fdd.core.bridge.link import (
     slew,
 )
 from thruster_fdd.core.bridge.plausibility import TelemetrySample, check_telemetry, to_sample
+from thruster_fdd.core.bridge.sequence import SeqCounts, SequenceWindow
 from thruster_fdd.core.bridge.tfdd import (
     CommandFrame,
     DecodedFrame,
@@ -40,7 +41,6 @@ from thruster_fdd.core.bridge.tfdd import (
     FrameDecoder,
     StatusFlag,
     TelemetryFrame,
-    classify_seq,
     encode_command,
 )
 from thruster_fdd.nodes.common import (
@@ -134,15 +134,15 @@ class EscDriver(Node):
         self._watchdog = True
 
         # Telemetry state (executor thread only).
-        self._last_seq: int | None = None
+        self._sequence = SequenceWindow()
         self._kiss_seq = 0
         self._last_frame_ns: int | None = None
-        self._counts = {"frames": 0, "lost": 0, "duplicates": 0, "rejected": 0}
+        self._counts = {"frames": 0, "rejected": 0}
         self._reject_reason = ""
         self._bridge_faults = ""
         self._flags_pending = 0
         self._decoder_stats = DecoderStats()
-        self._window_start = (dict(self._counts), DecoderStats())
+        self._window_start = (dict(self._counts), DecoderStats(), SeqCounts())
 
         self._reader = threading.Thread(target=self._read_loop, name="esc-serial", daemon=True)
         self._reader.start()
@@ -219,17 +219,15 @@ class EscDriver(Node):
                 self._handle_tfdd(received.frame.seq, received.frame.message, received.stamp_ns)
 
     def _handle_tfdd(self, seq: int, frame: TelemetryFrame, stamp_ns: int) -> None:
-        if self._last_seq is not None:
-            check = classify_seq(self._last_seq, seq)
-            if check.status == "duplicate":
-                self._counts["duplicates"] += 1
-                return
-            if check.status == "lost":
-                self._counts["lost"] += check.lost
-                self._flags_pending |= EscTelemetry.SEQUENCE_GAP
-        self._last_seq = seq
-        # ESC_TIMEOUT is the bridge's watchdog at work, reported separately; the rest are faults.
-        faults = StatusFlag(frame.status) & ~StatusFlag.ESC_TIMEOUT
+        reset = bool(frame.status & StatusFlag.RESET)
+        decision = self._sequence.check(seq, reset, frame.timestamp_us)
+        if not decision.publish:
+            return
+        if decision.lost:
+            self._flags_pending |= EscTelemetry.SEQUENCE_GAP
+        # ESC_TIMEOUT is the bridge's watchdog at work and RESET its restart, both reported
+        # separately; the rest are faults.
+        faults = StatusFlag(frame.status) & ~(StatusFlag.ESC_TIMEOUT | StatusFlag.RESET)
         self._bridge_faults = faults.name or "" if faults else ""
         sample = to_sample(frame)
         command = pwm_to_command(frame.pwm_us)
@@ -327,8 +325,9 @@ class EscDriver(Node):
     # ---- diagnostics -----------------------------------------------------------------------
 
     def _publish_diagnostics(self) -> None:
-        start_counts, start_stats = self._window_start
+        start_counts, start_stats, start_seq = self._window_start
         stats = self._decoder_stats
+        seq = self._sequence.counts()
         now = self.get_clock().now().nanoseconds
         since = None if self._last_frame_ns is None else (now - self._last_frame_ns) * 1e-9
         window = LinkWindow(
@@ -340,8 +339,13 @@ class EscDriver(Node):
             crc_errors=stats.crc_errors - start_stats.crc_errors,
             truncated=stats.truncated - start_stats.truncated,
             garbage_bytes=stats.garbage_bytes - start_stats.garbage_bytes,
-            lost=self._counts["lost"] - start_counts["lost"],
-            duplicates=self._counts["duplicates"] - start_counts["duplicates"],
+            lost=seq.lost - start_seq.lost,
+            duplicates=seq.duplicates - start_seq.duplicates,
+            replayed=seq.replayed - start_seq.replayed,
+            resets=seq.resets - start_seq.resets,
+            resyncs=seq.resyncs - start_seq.resyncs,
+            stuck_low_bytes=stats.stuck_low_bytes - start_stats.stuck_low_bytes,
+            stuck_high_bytes=stats.stuck_high_bytes - start_stats.stuck_high_bytes,
             rejected=self._counts["rejected"] - start_counts["rejected"],
             reject_reason=self._reject_reason,
             since_frame_s=since,
@@ -349,7 +353,7 @@ class EscDriver(Node):
             bridge_faults=self._bridge_faults,
             reconnects=self._reconnects,
         )
-        self._window_start = (dict(self._counts), stats)
+        self._window_start = (dict(self._counts), stats, seq)
         health = assess_link(window)
         publish_status(
             self,

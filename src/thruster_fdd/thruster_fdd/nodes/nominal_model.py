@@ -10,6 +10,7 @@ old one keeps running.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -22,7 +23,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from thruster_fdd_msgs.msg import EscTelemetry, Residual
 
 from thruster_fdd.core.artifact import default_models_dir
-from thruster_fdd.core.nominal.residuals import ResidualStream
+from thruster_fdd.core.nominal.residuals import ResidualSample, ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
@@ -58,6 +59,42 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 )
 
 
+def residual_message(
+    thruster_id: str, model_id: str, telemetry: EscTelemetry, out: ResidualSample
+) -> Residual:
+    """The ``Residual`` of one telemetry sample, every float field finite.
+
+    A non-finite input (the stream then flags the sample ``INPUT_INVALID``) or an output that
+    overflowed is published as 0 with ``INPUT_INVALID`` set: a subscriber never sees NaN or inf.
+
+    Parameters
+    ----------
+    thruster_id, model_id : str
+        Written into the message.
+    telemetry : EscTelemetry
+        The sample; its header and its command and voltage (the model's inputs) are copied.
+    out : ResidualSample
+        What the residual stream made of it.
+    """
+    values = {
+        "command": telemetry.command,
+        "voltage_v": telemetry.voltage_v,
+        "measured_rpm": out.measured_rpm,
+        "predicted_rpm": out.predicted_rpm,
+        "residual_rpm": out.residual_rpm,
+        "measured_current_a": out.measured_current_a,
+        "predicted_current_a": out.predicted_current_a,
+        "residual_current_a": out.residual_current_a,
+    }
+    flags = out.flags
+    if not all(math.isfinite(v) for v in values.values()):
+        flags |= Residual.INPUT_INVALID
+        values = {k: v if math.isfinite(v) else 0.0 for k, v in values.items()}
+    res = Residual(thruster_id=thruster_id, flags=flags, model_id=model_id, **values)
+    res.header = telemetry.header
+    return res
+
+
 class NominalModelNode(Node):
     """Publishes the residuals of one thruster (see module docstring)."""
 
@@ -86,6 +123,8 @@ class NominalModelNode(Node):
             event_callbacks=NO_SUB_EVENTS,
         )
         self._diag_period_s = float(p("diagnostics_period_s").value)
+        if not 0.0 < self._diag_period_s < math.inf:
+            raise ValueError(f"diagnostics_period_s must be > 0, got {self._diag_period_s}")
         self.create_timer(self._diag_period_s, self._publish_diagnostics)
         self._published = 0
         self._window_published = 0
@@ -132,20 +171,7 @@ class NominalModelNode(Node):
         self._step_s.append(time.perf_counter() - start)
         if out.reason:
             self._last_reason = out.reason
-        res = Residual(
-            thruster_id=self._id,
-            command=msg.command,
-            voltage_v=msg.voltage_v,
-            measured_rpm=out.measured_rpm,
-            predicted_rpm=out.predicted_rpm,
-            residual_rpm=out.residual_rpm,
-            measured_current_a=out.measured_current_a,
-            predicted_current_a=out.predicted_current_a,
-            residual_current_a=out.residual_current_a,
-            flags=out.flags,
-            model_id=self._model.model_id,
-        )
-        res.header = msg.header
+        res = residual_message(self._id, self._model.model_id, msg, out)
         for callback in self._local_subscribers:
             callback(res)
         self._pub.publish(res)

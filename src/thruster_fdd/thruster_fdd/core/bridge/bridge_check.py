@@ -115,6 +115,9 @@ def check_bridge(
     prev_seq: int | None = None
     seq = 0
     with serial.Serial(port, baud, timeout=COMMAND_PERIOD_S) as link:
+        # Bytes buffered before the port was opened end in a gap (a full buffer drops the rest):
+        # the check measures the live stream only.
+        link.reset_input_buffer()
         link.write(encode_version_query(seq))
         start = time.monotonic()
         while (now := time.monotonic()) - start < seconds:
@@ -123,13 +126,14 @@ def check_bridge(
                 command = CommandFrame(pulse_us, BRIDGE_TIMEOUT_MS)
                 link.write(encode_command(command, seq))
             for decoded in decoder.feed(link.read(4096)):
+                # The bridge numbers every frame it sends, version replies too (docs/protocol.md).
+                if prev_seq is not None:
+                    lost += classify_seq(prev_seq, decoded.seq).lost
+                prev_seq = decoded.seq
                 message = decoded.message
                 if isinstance(message, VersionFrame):
                     version = message
                 elif isinstance(message, TelemetryFrame):
-                    if prev_seq is not None:
-                        lost += classify_seq(prev_seq, decoded.seq).lost
-                    prev_seq = decoded.seq
                     frames += 1
                     flags |= message.status
                     if pulse_us is not None and message.pwm_us == pulse_us:

@@ -4,8 +4,10 @@ A :class:`BridgeEmulator` runs the physics simulator in real time behind the bri
 ``docs/protocol.md``: it writes telemetry frames at a fixed rate and applies the command frames it
 reads, with the bridge's own watchdog. The port is a real tty (``os.openpty``) published under a
 stable symlink, so the ESC driver opens it with pyserial exactly as it opens a USB serial adapter.
-Faults (garbage, bad CRC, truncated frames, sequence jumps, implausible values, an unplugged
-port, silence) are injected on request, which is how the driver's tests exercise it.
+Faults (garbage, bad CRC, truncated frames, sequence jumps, replayed frames, a bridge reset,
+a line stuck low or high, implausible values, an unplugged port, silence) are injected on
+request, which is how the driver's tests exercise it. Like the firmware, the first frame after
+start (and after a reset) carries the RESET status bit.
 """
 
 from __future__ import annotations
@@ -16,22 +18,25 @@ import queue
 import select
 import threading
 import time
-import tty
+from collections import deque
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from thruster_fdd.core.bridge.kiss import KissFrame, encode_kiss
+from thruster_fdd.core.bridge.pty_link import PtyLink
 from thruster_fdd.core.bridge.tfdd import (
     NEUTRAL_PWM_US,
     PWM_PER_UNIT,
+    SEQ_MODULUS,
     CommandFrame,
     FrameDecoder,
     StatusFlag,
     TelemetryFrame,
     encode_telemetry,
 )
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.physics import Sample, ThrusterSimulator
 
 PROTOCOLS: tuple[str, ...] = ("tfdd", "kiss")
@@ -62,13 +67,13 @@ class EmulatorSettings:
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.rate_hz <= 1000.0:
-            raise ValueError(f"rate_hz must be within 1..1000 Hz, got {self.rate_hz}")
+            raise BadInputError(f"rate_hz must be within 1..1000 Hz, got {self.rate_hz}")
         if self.protocol not in PROTOCOLS:
-            raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
-        if self.pole_pairs < 1:
-            raise ValueError(f"pole_pairs must be >= 1, got {self.pole_pairs}")
-        if self.command_timeout_s <= 0:
-            raise ValueError(f"command_timeout_s must be > 0, got {self.command_timeout_s}")
+            raise BadInputError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
+        if not 1 <= self.pole_pairs <= 255:
+            raise BadInputError(f"pole_pairs must be within 1..255, got {self.pole_pairs}")
+        if not 0 < self.command_timeout_s < float("inf"):
+            raise BadInputError(f"command_timeout_s must be > 0, got {self.command_timeout_s}")
 
 
 @dataclass(frozen=True)
@@ -107,6 +112,29 @@ class SkipSequence:
 
 
 @dataclass(frozen=True)
+class ReplayFrames:
+    """Send again ``count`` frames as they were sent, starting ``back`` frames ago (a bridge
+    re-sending its buffer): same sequence numbers, same bytes."""
+
+    back: int = 5
+    count: int = 5
+
+
+@dataclass(frozen=True)
+class BridgeReset:
+    """Restart the microcontroller: sequence and clock from 0, the next frame carries RESET."""
+
+
+@dataclass(frozen=True)
+class StuckLine:
+    """Hold the line at one level for ``duration_s``: ``byte`` 0x00 (stuck low, UART breaks)
+    or 0xFF (stuck high) at the line's byte rate instead of frames."""
+
+    byte: int = 0x00
+    duration_s: float = 1.0
+
+
+@dataclass(frozen=True)
 class OutOfRange:
     """Report an implausible bus voltage in the next ``n_frames`` frames (a bridge ADC fault)."""
 
@@ -140,6 +168,9 @@ Fault = (
     | Truncate
     | DuplicateFrame
     | SkipSequence
+    | ReplayFrames
+    | BridgeReset
+    | StuckLine
     | OutOfRange
     | Disconnect
     | Silence
@@ -154,6 +185,14 @@ _VOLTAGE_LOW_BYTE = {"tfdd": 13, "kiss": 2}
 
 # Voltage the OutOfRange fault reports: representable on the wire, far outside any thruster bus.
 _IMPLAUSIBLE_VOLTAGE_V = 600.0
+
+
+# Frames kept for ReplayFrames.
+_HISTORY = 256
+
+
+# Bytes per second of a line at 115200 baud (8N1: 10 bit times per byte).
+_LINE_BYTES_PER_S = 11_520
 
 
 @dataclass(frozen=True)
@@ -175,7 +214,8 @@ class BridgeEmulator:
         The thruster; stepped by ``1 / rate_hz`` s per telemetry frame.
     link : str or Path
         Path of the symlink to the pty's slave device: the port name the driver opens. Its
-        folder is created; an existing link is replaced.
+        folder is created; an existing symlink is replaced, anything else at that path is
+        refused (``open`` raises BadInputError), so a typo never deletes a file.
     settings : EmulatorSettings
         Rate and telemetry format.
     seed : int
@@ -197,13 +237,17 @@ class BridgeEmulator:
         self._pending = _Pending()
         self._rng = np.random.default_rng(seed)
         self._decoder = FrameDecoder()
+        self._pty: PtyLink | None = None
         self._master: int | None = None
-        self._slave: int | None = None
         self._seq = 0
+        self._boot = time.monotonic()
+        self._reset_pending = True
+        self._history: deque[bytes] = deque(maxlen=_HISTORY)
         self._pwm_us = NEUTRAL_PWM_US
         self._command_timeout_s = self._settings.command_timeout_s
         self._last_command = time.monotonic()
         self._silent_until = 0.0
+        self._stuck: tuple[int, float] | None = None
         self._timed_out = False
         self._consumption_mah = 0.0
         self.frames_sent = 0
@@ -221,30 +265,26 @@ class BridgeEmulator:
         return self._pwm_us
 
     def open(self) -> str:
-        """Create the pty and point the link at it; returns the slave device path."""
-        master, slave = os.openpty()
-        # Raw mode: no echo, no line editing, no CR/LF translation of the binary frames.
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        self._master, self._slave = master, slave
-        device = os.ttyname(slave)
-        self._link.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self._link.with_name(self._link.name + ".tmp")
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        tmp.symlink_to(device)
-        tmp.replace(self._link)
-        return device
+        """Create the pty and point the link at it; returns the slave device path.
+
+        Raises
+        ------
+        BadInputError
+            If something other than a symlink exists at the link path.
+        """
+        self._pty = PtyLink.open(self._link)
+        self._master = self._pty.master
+        return self._pty.device
 
     def close(self) -> None:
-        """Remove the link and close the pty (the driver sees the port vanish)."""
-        with contextlib.suppress(FileNotFoundError):
-            self._link.unlink()
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master = self._slave = None
+        """Remove the link and close the pty (the driver sees the port vanish).
+
+        The link is removed only while it still points at this emulator's pty.
+        """
+        if self._pty is not None:
+            self._pty.close()
+        self._pty = None
+        self._master = None
 
     def inject(self, fault: Fault) -> None:
         """Queue a fault; it takes effect at the next telemetry tick. Thread-safe."""
@@ -310,7 +350,17 @@ class BridgeEmulator:
                 case OutOfRange(n):
                     self._pending = replace(p, out_of_range=p.out_of_range + n)
                 case SkipSequence(n):
-                    self._seq = (self._seq + n) % 65536
+                    self._seq = (self._seq + n) % SEQ_MODULUS
+                case ReplayFrames(back, count):
+                    old = list(self._history)[-back:] if back > 0 else []
+                    for frame in old[:count]:
+                        self._write(frame)
+                case BridgeReset():
+                    self._seq = 0
+                    self._boot = time.monotonic()
+                    self._reset_pending = True
+                case StuckLine(byte, duration_s):
+                    self._stuck = (byte, time.monotonic() + duration_s)
                 case Silence(duration_s):
                     self._silent_until = time.monotonic() + duration_s
                 case SetCondition(condition):
@@ -331,6 +381,9 @@ class BridgeEmulator:
         self._consumption_mah += abs(sample.current) * period / 3.6
         if now < self._silent_until:
             return
+        if self._stuck is not None and now < self._stuck[1]:
+            self._write(bytes([self._stuck[0]]) * round(_LINE_BYTES_PER_S * period))
+            return
         p = self._pending
         voltage = _IMPLAUSIBLE_VOLTAGE_V if p.out_of_range else sample.voltage
         frame = self._encode(sample, voltage, now)
@@ -347,7 +400,9 @@ class BridgeEmulator:
         )
         for _ in range(copies):
             self._write(frame)
-        self._seq = (self._seq + 1) % 65536
+        self._history.append(frame)
+        self._reset_pending = False
+        self._seq = (self._seq + 1) % SEQ_MODULUS
         self.frames_sent += 1
 
     def _encode(self, sample: Sample, voltage: float, now: float) -> bytes:
@@ -360,14 +415,17 @@ class BridgeEmulator:
                 rpm=abs(sample.rpm),
             )
             return encode_kiss(kiss, self._settings.pole_pairs)
+        status = StatusFlag.ESC_TIMEOUT if self._timed_out else StatusFlag(0)
+        if self._reset_pending:
+            status |= StatusFlag.RESET
         frame = TelemetryFrame(
-            timestamp_us=int(now * 1e6) % (1 << 32),
+            timestamp_us=int(max(0.0, now - self._boot) * 1e6) % (1 << 32),
             pwm_us=self._pwm_us,
             voltage_v=voltage,
             current_a=sample.current,
             rpm=sample.rpm,
             temperature_c=sample.temperature,
-            status=StatusFlag.ESC_TIMEOUT if self._timed_out else 0,
+            status=int(status),
         )
         return encode_telemetry(frame, self._seq)
 

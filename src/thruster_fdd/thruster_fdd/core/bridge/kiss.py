@@ -8,6 +8,7 @@ import struct
 from dataclasses import dataclass
 
 from thruster_fdd.core.bridge.crc import crc8_kiss
+from thruster_fdd.core.bridge.stuck import StuckRun
 from thruster_fdd.core.bridge.tfdd import DecoderStats, checked_int, scaled_int
 
 KISS_FRAME_LEN = 10
@@ -19,6 +20,9 @@ DEFAULT_POLE_PAIRS = 7
 
 
 _KISS = struct.Struct(">BHHHH")
+
+
+_STUCK_WINDOWS = frozenset({bytes(KISS_FRAME_LEN), b"\xff" * KISS_FRAME_LEN})
 
 
 @dataclass(frozen=True)
@@ -87,7 +91,8 @@ class KissDecoder:
 
     At each position the next 10 bytes are tried as a frame; while the CRC fails the decoder
     slides one byte. An 8-bit CRC passes on about 1 in 256 misaligned windows, so after noise a
-    false frame can be accepted: check samples with ``check_telemetry`` and prefer tfdd.
+    false frame can be accepted: check samples with ``check_telemetry`` and prefer tfdd. Ten
+    bytes of one repeated 0x00 or 0xFF (a stuck line, ``core.bridge.stuck``) are never a frame.
 
     Parameters
     ----------
@@ -105,6 +110,7 @@ class KissDecoder:
         self._buf = bytearray()
         self._locked = False
         self._counts = {name: 0 for name in DecoderStats.__dataclass_fields__}
+        self._stuck = StuckRun()
 
     @property
     def buffered(self) -> int:
@@ -131,12 +137,16 @@ class KissDecoder:
         out: list[KissFrame] = []
         counts = self._counts
         counts["bytes_received"] += len(data)
+        self._stuck.feed(data)
+        counts["stuck_low_bytes"] = self._stuck.low_bytes
+        counts["stuck_high_bytes"] = self._stuck.high_bytes
         buf = self._buf
         buf += data
         pos = 0
         while len(buf) - pos >= KISS_FRAME_LEN:
             window = bytes(buf[pos : pos + KISS_FRAME_LEN])
-            if crc8_kiss(window[:-1]) == window[-1]:
+            # Ten 0x00 bytes pass the CRC-8 (0 V, 0 A, 0 rpm): a line stuck low, not a frame.
+            if crc8_kiss(window[:-1]) == window[-1] and window not in _STUCK_WINDOWS:
                 temp, volt, curr, mah, erpm_100 = _KISS.unpack(window[:-1])
                 rpm = erpm_100 * 100 / self._pole_pairs
                 out.append(KissFrame(float(temp), volt / 100, curr / 100, mah, rpm))

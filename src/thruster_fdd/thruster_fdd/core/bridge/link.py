@@ -108,6 +108,13 @@ class LinkWindow:
         Decoder counts: frames with a bad CRC, frames cut short, bytes skipped as noise.
     lost, duplicates : int
         Frames missing from the sequence, and frames received twice (dropped).
+    replayed : int
+        Frames with a sequence number behind the newest (replays, stale; dropped).
+    resets, resyncs : int
+        Bridge resets announced by the RESET bit, and sequence restarts without it (the
+        sequence window re-anchored, ``core.bridge.sequence``).
+    stuck_low_bytes, stuck_high_bytes : int
+        Bytes of a line stuck low (runs of 0x00) or high (runs of 0xFF).
     rejected : int
         Frames refused as physically implausible (never published).
     reject_reason : str
@@ -132,6 +139,11 @@ class LinkWindow:
     garbage_bytes: int = 0
     lost: int = 0
     duplicates: int = 0
+    replayed: int = 0
+    resets: int = 0
+    resyncs: int = 0
+    stuck_low_bytes: int = 0
+    stuck_high_bytes: int = 0
     rejected: int = 0
     reject_reason: str = ""
     since_frame_s: float | None = None
@@ -162,34 +174,53 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
     Returns
     -------
     LinkHealth
-        ERROR when the port is closed; STALE when no telemetry arrives; WARN for CRC errors,
-        truncated frames, noise, lost or duplicated frames, refused samples, bridge faults or
-        the watchdog holding neutral; OK otherwise.
+        ERROR when the port is closed or the line is stuck with no telemetry; STALE when no
+        telemetry arrives; WARN for CRC errors, truncated frames, noise, lost, duplicated or
+        replayed frames, bridge resets, sequence restarts, stuck bytes between frames, refused
+        samples, bridge faults or the watchdog holding neutral; OK otherwise.
     """
-    rate = window.frames / window.period_s if window.period_s > 0 else 0.0
+    rate = window.frames / window.period_s if 0 < window.period_s < math.inf else 0.0
+    rate = rate if math.isfinite(rate) else 0.0  # a period of 5e-324 s
+    expected = window.expected_rate_hz if 0 < window.expected_rate_hz < math.inf else 0.0
     values = (
         ("telemetry_rate_hz", f"{rate:.1f}"),
-        ("expected_rate_hz", f"{window.expected_rate_hz:.1f}"),
+        ("expected_rate_hz", f"{expected:.1f}"),
         ("link", "open" if window.port_open else "closed"),
         ("crc_errors", str(window.crc_errors)),
         ("truncated_frames", str(window.truncated)),
         ("garbage_bytes", str(window.garbage_bytes)),
         ("lost_frames", str(window.lost)),
         ("duplicate_frames", str(window.duplicates)),
+        ("replayed_frames", str(window.replayed)),
+        ("bridge_resets", str(window.resets)),
+        ("sequence_restarts", str(window.resyncs)),
+        ("stuck_low_bytes", str(window.stuck_low_bytes)),
+        ("stuck_high_bytes", str(window.stuck_high_bytes)),
         ("rejected_samples", str(window.rejected)),
         ("reconnects", str(window.reconnects)),
         ("watchdog_neutral", str(window.watchdog_neutral).lower()),
     )
     if not window.port_open:
         return LinkHealth(ERROR, f"serial port not open: {window.port_error}", values)
-    stale_s = stale_after_periods / window.expected_rate_hz
-    if window.since_frame_s is None or window.since_frame_s > stale_s:
+    stuck = [
+        f"line stuck {level}: {count} bytes of {byte}"
+        for level, count, byte in (
+            ("low", window.stuck_low_bytes, "0x00"),
+            ("high", window.stuck_high_bytes, "0xFF"),
+        )
+        if count
+    ]
+    if stuck and window.frames == 0:
+        return LinkHealth(ERROR, f"{'; '.join(stuck)}, no telemetry (check wiring)", values)
+    # Without a known rate, silence for a whole diagnostics period is stale.
+    stale_s = stale_after_periods / expected if expected else window.period_s
+    if window.since_frame_s is None or not window.since_frame_s <= stale_s:
         silent = (
             "no telemetry yet"
             if window.since_frame_s is None
             else (f"no telemetry for {window.since_frame_s:.1f} s")
         )
-        return LinkHealth(STALE, f"{silent} (expected {window.expected_rate_hz:g} Hz)", values)
+        return LinkHealth(STALE, f"{silent} (expected {expected:g} Hz)", values)
     problems = [
         text
         for count, text in (
@@ -198,6 +229,9 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
             (window.garbage_bytes, f"{window.garbage_bytes} bytes of noise skipped"),
             (window.lost, f"{window.lost} frames lost (sequence gap)"),
             (window.duplicates, f"{window.duplicates} duplicated frames dropped"),
+            (window.replayed, f"{window.replayed} replayed or stale frames dropped"),
+            (window.resets, f"bridge reset {window.resets} time(s)"),
+            (window.resyncs, f"{window.resyncs} sequence restart(s) without RESET"),
             (
                 window.rejected,
                 f"{window.rejected} implausible samples refused ({window.reject_reason})",
@@ -205,6 +239,7 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
         )
         if count
     ]
+    problems.extend(stuck)
     if window.bridge_faults:
         problems.append(f"bridge reports {window.bridge_faults}")
     if window.watchdog_neutral:

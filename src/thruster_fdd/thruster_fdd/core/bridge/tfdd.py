@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from thruster_fdd.core.bridge.crc import crc16_ccitt_false
+from thruster_fdd.core.bridge.stuck import StuckRun
 
 SYNC = b"\xa5\x5a"
 """The two sync bytes that start every tfdd frame."""
@@ -210,6 +211,9 @@ class DecoderStats:
         tfdd only: syncs followed by a version byte other than ``PROTOCOL_VERSION`` (a bridge
         speaking another version, or noise); such a frame's layout is unknown, so it is skipped
         like a false sync.
+    stuck_low_bytes, stuck_high_bytes : int
+        Bytes in runs of at least ``stuck.STUCK_RUN_BYTES`` 0x00 (line stuck low) or 0xFF
+        (stuck high) bytes: a link fault, never telemetry.
     """
 
     bytes_received: int = 0
@@ -220,6 +224,8 @@ class DecoderStats:
     truncated: int = 0
     unknown_type: int = 0
     bad_version: int = 0
+    stuck_low_bytes: int = 0
+    stuck_high_bytes: int = 0
 
 
 def checked_int(name: str, value: int, lo: int, hi: int) -> int:
@@ -359,6 +365,7 @@ class FrameDecoder:
     def __init__(self) -> None:
         self._buf = bytearray()
         self._counts = {name: 0 for name in DecoderStats.__dataclass_fields__}
+        self._stuck = StuckRun()
 
     @property
     def buffered(self) -> int:
@@ -384,6 +391,9 @@ class FrameDecoder:
         """
         out: list[DecodedFrame] = []
         self._counts["bytes_received"] += len(data)
+        self._stuck.feed(data)
+        self._counts["stuck_low_bytes"] = self._stuck.low_bytes
+        self._counts["stuck_high_bytes"] = self._stuck.high_bytes
         # Slices keep the buffer bounded even when one call brings megabytes of noise.
         for start in range(0, len(data), MAX_FRAME_LEN):
             self._buf += data[start : start + MAX_FRAME_LEN]

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from thruster_fdd.core.atomic import replaced_file, write_text
 from thruster_fdd.core.diagnosis.metrics import balanced_accuracy, confusion, normalise_rows
 from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.diagnosis.offline import check_pair, trace_decisions
@@ -349,9 +350,8 @@ def run_evaluation(
     result["onset"] = fault_onsets(windows, nominal, classifier, progress=progress)
     result["unknown"] = unknown_rates(nominal, classifier)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table3.json").write_text(_json(result))
-    (out / "table3.md").write_text(table3_markdown(result))
+    write_text(out / "table3.json", _json(result))
+    write_text(out / "table3.md", table3_markdown(result))
     plot_confusions(result, out)
     return result
 
@@ -390,7 +390,8 @@ def plot_confusions(result: dict[str, Any], out_dir: Path) -> list[Path]:
     fig.suptitle("Table 3 protocol, per sample (one unit, 0.01 Hz sine, test = new recording)")
     fig.tight_layout()
     paths.append(out_dir / "confusion_per_sample.png")
-    fig.savefig(paths[-1], dpi=110)
+    with replaced_file(paths[-1]) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6.2, 5.2))
     m = np.asarray(result["per_window"]["confusion"])
@@ -399,7 +400,8 @@ def plot_confusions(result: dict[str, Any], out_dir: Path) -> list[Path]:
     ax.set_title(f"window MLP, unseen units, all profiles: balanced {ba:.4f}")
     fig.tight_layout()
     paths.append(out_dir / "confusion_per_window.png")
-    fig.savefig(paths[-1], dpi=110)
+    with replaced_file(paths[-1]) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
     return paths
 

@@ -22,6 +22,8 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from thruster_fdd.core.atomic import replaced_file
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.nominal.spec import MODES, ModelSpec
@@ -392,7 +394,8 @@ def plot_table2_predictions(
         np.atleast_1d(axes)[-1].set_xlabel("time (s)")
         fig.tight_layout()
         path = out / f"table2_{name}.png"
-        fig.savefig(path, dpi=90)
+        with replaced_file(path) as tmp:
+            fig.savefig(tmp, dpi=90, format="png")
         plt.close(fig)
         paths.append(path)
     return paths
@@ -422,7 +425,7 @@ def evaluate_model_on_traces(
         model.mode = saved
     y, p = np.concatenate(ys), np.concatenate(ps)
     if not np.any(np.isfinite(p[:, 0])):
-        raise ValueError(
+        raise BadInputError(
             f"traces are too short: the model needs more than {model.warmup_samples} samples"
         )
     return {

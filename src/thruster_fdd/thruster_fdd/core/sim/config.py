@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.safe_yaml import load_yaml
 from thruster_fdd.core.sim.effects import EFFECTS, Effect, canonical_order, make_effect
 
 _PRESETS = ("t100", "t200")
@@ -309,7 +310,7 @@ def load_config(source: str | Path) -> SimConfig:
         text = path.read_text()
         origin = str(path)
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text, origin)
     except yaml.YAMLError as exc:
         raise BadInputError(f"{origin}: not valid YAML ({exc})") from exc
     return config_from_dict(data, origin=origin)

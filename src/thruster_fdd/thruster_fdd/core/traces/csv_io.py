@@ -7,12 +7,21 @@ from pathlib import Path
 
 import numpy as np
 
+from thruster_fdd.core.atomic import replaced_file
 from thruster_fdd.core.errors import BadInputError
-from thruster_fdd.core.traces.data import TRACE_COLUMNS, Trace
+from thruster_fdd.core.traces.data import (
+    TRACE_COLUMNS,
+    Trace,
+    check_time,
+    check_units,
+    finite_rows,
+)
 
 
 def write_trace_csv(trace: Trace, path: str | Path) -> None:
     """Write ``trace`` as a trace CSV (the columns, then ``condition`` / ``thruster_id``).
+
+    The file appears whole or not at all (``core.atomic``).
 
     Parameters
     ----------
@@ -21,8 +30,6 @@ def write_trace_csv(trace: Trace, path: str | Path) -> None:
     path : str or Path
         Destination file; parent folders are created.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     header = list(TRACE_COLUMNS) + list(trace.extra)
     labels = trace.sample_labels()
     if labels is not None:
@@ -30,7 +37,7 @@ def write_trace_csv(trace: Trace, path: str | Path) -> None:
     if trace.thruster_id is not None:
         header.append("thruster_id")
     columns = [getattr(trace, c) for c in TRACE_COLUMNS] + list(trace.extra.values())
-    with path.open("w", newline="") as f:
+    with replaced_file(path) as tmp, tmp.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(header)
         for i in range(len(trace)):
@@ -43,32 +50,49 @@ def write_trace_csv(trace: Trace, path: str | Path) -> None:
             writer.writerow(row)
 
 
+def _read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    """The header and rows of a CSV file; BadInputError when it is not a readable CSV."""
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            reader = csv.DictReader(f)
+            fields = [name.strip() for name in reader.fieldnames or []]
+            twice = sorted({name for name in fields if name and fields.count(name) > 1})
+            if twice:
+                raise BadInputError(f"{path}: column(s) {', '.join(twice)} appear more than once")
+            rows = [{k.strip(): (v or "").strip() for k, v in row.items() if k} for row in reader]
+    except UnicodeDecodeError as exc:
+        raise BadInputError(f"{path}: not a text CSV file (byte {exc.start} is not UTF-8)") from exc
+    except csv.Error as exc:
+        raise BadInputError(f"{path}: not a readable CSV file ({exc})") from exc
+    return fields, rows
+
+
 def read_trace_csv(path: str | Path) -> Trace:
     """Read a trace CSV with at least the columns of ``TRACE_COLUMNS``.
 
     Extra numeric columns are kept in ``Trace.extra``. A ``condition`` column with one class
     name gives ``Trace.condition``; one whose name changes (a fault mid-run) gives ``labels``.
+    Rows with a non-finite number (``nan``, ``inf``) are left out with a ``TraceWarning``.
 
     Raises
     ------
-    ValueError
-        If a required column is missing, a value is not a number, a label is missing on some
-        rows, or ``thruster_id`` changes within the file.
+    BadInputError
+        If the file is not a text CSV, a column is missing or appears twice, a value is not a
+        number, times do not increase, a column is plausibly in the wrong unit (a pulse width
+        in the command column, milliseconds in the time column: ``data.check_units``), a label
+        is missing on some rows, or ``thruster_id`` changes within the file.
     """
     path = Path(path)
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        if reader.fieldnames is None:
-            expected = ", ".join(TRACE_COLUMNS)
-            raise BadInputError(f"{path}: empty file, expected a header with {expected}")
-        fields = [name.strip() for name in reader.fieldnames]
-        missing = [c for c in TRACE_COLUMNS if c not in fields]
-        if missing:
-            raise BadInputError(f"{path}: missing trace column(s) {', '.join(missing)}")
-        rows = [{k.strip(): (v or "").strip() for k, v in row.items() if k} for row in reader]
+    fields, rows = _read_rows(path)
+    if not fields:
+        expected = ", ".join(TRACE_COLUMNS)
+        raise BadInputError(f"{path}: empty file, expected a header with {expected}")
+    missing = [c for c in TRACE_COLUMNS if c not in fields]
+    if missing:
+        raise BadInputError(f"{path}: missing trace column(s) {', '.join(missing)}")
     if not rows:
         raise BadInputError(f"{path}: no samples")
-    numeric = [c for c in fields if c not in ("condition", "thruster_id")]
+    numeric = [c for c in fields if c and c not in ("condition", "thruster_id")]
     values: dict[str, np.ndarray] = {}
     for name in numeric:
         try:
@@ -77,6 +101,11 @@ def read_trace_csv(path: str | Path) -> Trace:
             raise BadInputError(
                 f"{path}: column {name!r} holds a value that is not a number"
             ) from exc
+    values["_row"] = np.arange(len(rows), dtype=float)
+    values = finite_rows(values, str(path))
+    kept = values.pop("_row").astype(int)
+    rows = [rows[i] for i in kept]
+    check_time(values["t"], str(path))
     labels = np.array([r.get("condition", "") for r in rows], dtype=object)
     if "condition" not in fields or not labels.any():
         labels_or_none, condition = None, None
@@ -88,13 +117,18 @@ def read_trace_csv(path: str | Path) -> Trace:
         labels_or_none, condition = labels, None
     thruster_id = _single_label(path, rows, "thruster_id")
     extra = {k: v for k, v in values.items() if k not in TRACE_COLUMNS}
-    return Trace(
-        **{c: values[c] for c in TRACE_COLUMNS},
-        condition=condition,
-        thruster_id=thruster_id,
-        extra=extra,
-        labels=labels_or_none,
-    )
+    try:
+        trace = Trace(
+            **{c: values[c] for c in TRACE_COLUMNS},
+            condition=condition,
+            thruster_id=thruster_id,
+            extra=extra,
+            labels=labels_or_none,
+        )
+    except BadInputError as exc:
+        raise BadInputError(f"{path}: {exc}") from None
+    check_units(trace, str(path))
+    return trace
 
 
 def _single_label(path: Path, rows: list[dict[str, str]], column: str) -> str | None:
@@ -113,17 +147,15 @@ def read_command_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
     Raises
     ------
-    ValueError
-        If a column is missing, a value is not a finite number, times do not increase or a
-        command lies outside -1..1.
+    BadInputError
+        If the file is not a text CSV, a column is missing or appears twice, a value is not a
+        finite number, times do not increase or a command lies outside -1..1 (a pulse width in
+        µs is named).
     """
     path = Path(path)
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        fields = [name.strip() for name in reader.fieldnames or []]
-        if "t" not in fields or "command" not in fields:
-            raise BadInputError(f"{path}: needs columns t and command, has {fields}")
-        rows = [{k.strip(): v for k, v in row.items() if k} for row in reader]
+    fields, rows = _read_rows(path)
+    if "t" not in fields or "command" not in fields:
+        raise BadInputError(f"{path}: needs columns t and command, has {fields}")
     try:
         t = np.array([float(r["t"]) for r in rows])
         command = np.array([float(r["command"]) for r in rows])
@@ -136,5 +168,8 @@ def read_command_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if not np.all(np.diff(t) > 0):
         raise BadInputError(f"{path}: t must be strictly increasing")
     if np.any(np.abs(command) > 1.0):
-        raise BadInputError(f"{path}: command must lie within -1..1")
+        hint = ""
+        if 800.0 <= float(np.median(command)) <= 2200.0:
+            hint = "; it looks like a pulse width in µs: command = (pwm_us - 1500) / 400"
+        raise BadInputError(f"{path}: command must lie within -1..1{hint}")
     return t, command

@@ -11,16 +11,22 @@ from __future__ import annotations
 
 import os
 import re
+import struct
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
 from thruster_fdd.core.errors import BadInputError
-from thruster_fdd.core.traces.data import Trace
+from thruster_fdd.core.traces.data import Trace, check_units, finite_rows
+from thruster_fdd.core.traces.mcap_read import (
+    McapChannel,
+    McapContents,
+    read_mcap,
+    ros2_decoder,
+    warn_if_damaged,
+)
 
 TELEMETRY_TYPE = "thruster_fdd_msgs/msg/EscTelemetry"
 
@@ -167,70 +173,149 @@ def write_trace_mcap(traces: Iterable[Trace], path: str | Path) -> None:
         writer.finish()
 
 
+# What decoding a damaged CDR message can raise (the decoder is generated from the schema), or
+# reading a field that another version of the schema does not have.
+DECODE_ERRORS = (
+    ValueError,
+    IndexError,
+    KeyError,
+    TypeError,
+    AttributeError,
+    OverflowError,
+    MemoryError,
+    struct.error,
+    UnicodeDecodeError,
+)
+
+
 def read_trace_mcap(path: str | Path) -> list[Trace]:
     """Read every thruster's telemetry from an MCAP file as traces (one per thruster id).
 
-    Labels come from the ``thruster_fdd`` metadata record when present.
+    Labels come from the ``thruster_fdd`` metadata record when present. A damaged recording
+    (cut short, chunks failing their CRC, undecodable messages, a telemetry channel with another
+    schema or encoding) gives what can be read and one ``DamagedRecordingWarning`` saying what
+    was lost (``core.traces.mcap_read``); samples with non-finite values are left out with a
+    ``TraceWarning``.
 
     Raises
     ------
-    ValueError
-        If the file holds no ``EscTelemetry`` topic.
+    BadInputError
+        If the file is not an MCAP recording, holds no readable ``EscTelemetry`` on
+        ``/thruster/<id>/esc/telemetry``, has malformed label metadata, or a column is
+        plausibly in the wrong unit (``data.check_units``).
     """
-    path = Path(path)
+    contents = read_mcap(path)
+    path = contents.path
+    meta = contents.metadata.get(METADATA_NAME, {})
+    segments = {k.removeprefix("labels."): v for k, v in meta.items() if k.startswith("labels.")}
     columns: dict[str, dict[str, list[float]]] = {}
-    segments: dict[str, str] = {}
-    with path.open("rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for record in reader.iter_metadata():
-            if record.name == METADATA_NAME:
-                segments.update({k.removeprefix("labels."): v for k, v in record.metadata.items()})
-        for schema, channel, _, msg in reader.iter_decoded_messages():
-            match = _TELEMETRY_TOPIC.match(channel.topic)
-            if schema is None or schema.name != TELEMETRY_TYPE or match is None:
+    problems: list[str] = []
+    undecodable = 0
+    for channel, messages in _telemetry_channels(contents, problems):
+        decode = ros2_decoder(channel)
+        if decode is None:
+            problems.append(
+                f"{channel.topic}: schema does not parse; {len(messages)} message(s) skipped"
+            )
+            continue
+        tid = _TELEMETRY_TOPIC.match(channel.topic)["id"]  # type: ignore[index]
+        cols = columns.setdefault(tid, {k: [] for k in ("t", *_FIELDS)})
+        for data in messages:
+            try:
+                msg = decode(data)
+                row = [msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9]
+                row += [float(getattr(msg, field)) for field in _FIELDS.values()]
+            except DECODE_ERRORS:
+                undecodable += 1
                 continue
-            cols = columns.setdefault(
-                match["id"], {k: [] for k in ("t", "command", "voltage", "rpm", "current", "T")}
-            )
-            cols["t"].append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
-            cols["command"].append(msg.command)
-            cols["voltage"].append(msg.voltage_v)
-            cols["rpm"].append(msg.rpm)
-            cols["current"].append(msg.current_a)
-            cols["T"].append(msg.temperature_c)
+            for key, value in zip(("t", *_FIELDS), row, strict=True):
+                cols[key].append(value)
+    if undecodable:
+        problems.append(f"{undecodable} telemetry message(s) do not decode")
+    warn_if_damaged(contents, tuple(problems))
+    columns = {tid: cols for tid, cols in columns.items() if cols["t"]}
     if not columns:
-        raise BadInputError(f"{path}: no {TELEMETRY_TYPE} messages on /thruster/<id>/esc/telemetry")
-    traces = []
-    for tid, cols in sorted(columns.items()):
-        arrays = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
-        order = np.argsort(arrays["t"], kind="stable")
-        arrays = {k: v[order] for k, v in arrays.items()}
-        # A live log can hold a sample twice (a re-sent frame): keep the first of each stamp.
-        first = np.concatenate(([True], np.diff(arrays["t"]) > 0))
-        arrays = {k: v[first] for k, v in arrays.items()}
-        labels = _labels_from_segments(arrays["t"], segments.get(tid, ""))
-        uniform = labels is not None and bool((labels == labels[0]).all())
-        traces.append(
-            Trace(
-                t=arrays["t"],
-                command=arrays["command"],
-                voltage=arrays["voltage"],
-                rpm=arrays["rpm"],
-                current=arrays["current"],
-                condition=str(labels[0]) if uniform else None,
-                thruster_id=tid,
-                extra={"temperature": arrays["T"]},
-                labels=None if uniform else labels,
+        raise BadInputError(f"{path}: no readable {TELEMETRY_TYPE} on /thruster/<id>/esc/telemetry")
+    return [_trace(path, tid, cols, segments.get(tid, "")) for tid, cols in sorted(columns.items())]
+
+
+# Trace column -> EscTelemetry field.
+_FIELDS = {
+    "command": "command",
+    "voltage": "voltage_v",
+    "rpm": "rpm",
+    "current": "current_a",
+    "temperature": "temperature_c",
+}
+
+
+def _telemetry_channels(
+    contents: McapContents, problems: list[str]
+) -> list[tuple[McapChannel, list[bytes]]]:
+    """The telemetry channels of a recording with their messages' data; channels on a telemetry
+    topic with another type or encoding are named in ``problems`` and left out."""
+    by_channel: dict[int, list[bytes]] = {}
+    for cid, _, data in contents.messages:
+        by_channel.setdefault(cid, []).append(data)
+    out = []
+    for cid, channel in sorted(contents.channels.items()):
+        if _TELEMETRY_TOPIC.match(channel.topic) is None:
+            continue
+        schema = channel.schema
+        kind = None if schema is None else (schema.name, schema.encoding, channel.message_encoding)
+        if kind != (TELEMETRY_TYPE, "ros2msg", "cdr"):
+            got = "no schema" if kind is None else f"{kind[0]} in {kind[1]} / {kind[2]}"
+            problems.append(
+                f"{channel.topic}: {got}, not {TELEMETRY_TYPE} in ros2msg / cdr; "
+                f"{len(by_channel.get(cid, []))} message(s) skipped"
             )
+            continue
+        out.append((channel, by_channel.get(cid, [])))
+    return out
+
+
+def _trace(path: Path, tid: str, cols: dict[str, list[float]], segments: str) -> Trace:
+    """One thruster's trace from its decoded columns: non-finite samples left out, sorted by
+    time, a sample recorded twice (a re-sent frame) kept once, labels attached, units checked."""
+    source = f"{path} ({tid})"
+    arrays = finite_rows({k: np.asarray(v, dtype=float) for k, v in cols.items()}, source)
+    order = np.argsort(arrays["t"], kind="stable")
+    arrays = {k: v[order] for k, v in arrays.items()}
+    first = np.concatenate(([True], np.diff(arrays["t"]) > 0))
+    arrays = {k: v[first] for k, v in arrays.items()}
+    labels = _labels_from_segments(source, arrays["t"], segments)
+    uniform = labels is not None and bool((labels == labels[0]).all())
+    try:
+        trace = Trace(
+            t=arrays["t"],
+            command=arrays["command"],
+            voltage=arrays["voltage"],
+            rpm=arrays["rpm"],
+            current=arrays["current"],
+            condition=str(labels[0]) if uniform else None,
+            thruster_id=tid,
+            extra={"temperature": arrays["temperature"]},
+            labels=None if uniform else labels,
         )
-    return traces
+    except BadInputError as exc:
+        raise BadInputError(f"{source}: {exc}") from None
+    check_units(trace, source)
+    return trace
 
 
-def _labels_from_segments(t: np.ndarray, text: str) -> np.ndarray | None:
+def _labels_from_segments(source: str, t: np.ndarray, text: str) -> np.ndarray | None:
+    """Per-sample class names from ``start_s:class;...`` metadata; None when there is none."""
     if not text:
         return None
-    segments = [part.partition(":")[::2] for part in text.split(";")]
+    try:
+        segments = [
+            (float(start), name) for start, _, name in (p.partition(":") for p in text.split(";"))
+        ]
+    except ValueError:
+        raise BadInputError(
+            f"{source}: label metadata {text[:60]!r} is not start_s:class;..."
+        ) from None
     labels = np.full(len(t), segments[0][1], dtype=object)
     for start, name in segments[1:]:
-        labels[t >= float(start) - 1e-9] = name
+        labels[t >= start - 1e-9] = name
     return labels

@@ -11,19 +11,16 @@ The recorder node hands every message it receives (topic, type, CDR bytes, time)
 from __future__ import annotations
 
 import contextlib
-import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
-from mcap.exceptions import McapError
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from thruster_fdd.core.traces.mcap_io import message_definition
+from thruster_fdd.core.traces.mcap_read import read_mcap
 
 COMPRESSIONS = {
     "zstd": CompressionType.ZSTD,
@@ -218,11 +215,11 @@ class Recovered:
     Attributes
     ----------
     messages : list of (topic, schema name, data, log_time_ns)
-        Every message of every complete record, in file order.
+        Every message that could be read, in file order (bytes as written).
     complete : bool
         Whether the file ended properly (footer and magic present).
     error : str
-        Why reading stopped early, empty when complete.
+        What was lost (a cut end, damaged chunks), empty for a sound file.
     """
 
     messages: list[tuple[str, str, bytes, int]]
@@ -231,23 +228,21 @@ class Recovered:
 
 
 def read_recovered(path: str | Path) -> Recovered:
-    """Read every message from an MCAP file, tolerating a missing end (a killed recorder).
+    """Read every message from an MCAP file, tolerating a missing end (a killed recorder) and
+    damaged chunks (skipped; ``error`` says what was lost).
 
-    Uses the ``mcap`` package's streaming reader, which needs no summary section.
+    Uses ``core.traces.mcap_read.read_mcap``, which needs no summary section.
+
+    Raises
+    ------
+    BadInputError
+        If the file is not an MCAP file (a prefix of the magic, even empty, is a cut one).
     """
-    schemas: dict[int, str] = {}
-    topics: dict[int, tuple[str, int]] = {}
-    out: list[tuple[str, str, bytes, int]] = []
-    with Path(path).open("rb") as stream:
-        try:
-            for record in StreamReader(stream).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record.name
-                elif isinstance(record, Channel):
-                    topics[record.id] = (record.topic, record.schema_id)
-                elif isinstance(record, Message):
-                    topic, schema_id = topics[record.channel_id]
-                    out.append((topic, schemas.get(schema_id, ""), record.data, record.log_time))
-        except (McapError, EOFError, ValueError, KeyError, struct.error) as exc:
-            return Recovered(out, False, f"{type(exc).__name__}: {exc}")
-    return Recovered(out, True)
+    contents = read_mcap(path, require_messages=False)
+    messages = []
+    for channel_id, log_time, data in contents.messages:
+        channel = contents.channels.get(channel_id)
+        if channel is not None:
+            schema = "" if channel.schema is None else channel.schema.name
+            messages.append((channel.topic, schema, data, log_time))
+    return Recovered(messages, contents.complete, "; ".join(contents.problems))

@@ -9,24 +9,18 @@ ground-truth labels a simulated recording carries in its metadata.
 
 from __future__ import annotations
 
+import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
 
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.nominal.residuals import decimate
-from thruster_fdd.core.traces.mcap_io import METADATA_NAME
-
-_TELEMETRY = "/esc/telemetry"
-
-
-_RESIDUAL = "/fdd/residual"
-
-
-_DIAGNOSIS = "/fdd/diagnosis"
+from thruster_fdd.core.traces.mcap_io import DECODE_ERRORS, METADATA_NAME
+from thruster_fdd.core.traces.mcap_read import read_mcap, ros2_decoder, warn_if_damaged
 
 
 @dataclass(frozen=True)
@@ -62,50 +56,74 @@ class ThrusterBag:
         return label
 
 
+_TOPIC = re.compile(r"^/thruster/(?P<id>[^/]+)/(?P<kind>esc/telemetry|fdd/residual|fdd/diagnosis)$")
+
+
+_TYPES = {
+    "esc/telemetry": "thruster_fdd_msgs/msg/EscTelemetry",
+    "fdd/residual": "thruster_fdd_msgs/msg/Residual",
+    "fdd/diagnosis": "thruster_fdd_msgs/msg/Diagnosis",
+}
+
+
 def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
     """Read the telemetry to replay and the diagnoses of every thruster.
 
     The samples replayed are those the live nominal model used — the stamps of the recorded
     residuals — when the recording has residuals, so a live run is reproduced sample for
-    sample; otherwise the telemetry decimated to ``period_s``.
+    sample; otherwise the telemetry decimated to ``period_s``. A damaged recording gives what
+    can be read, with one ``DamagedRecordingWarning`` (``core.traces.mcap_read``).
 
     Raises
     ------
-    ValueError
-        If the file holds no ``/thruster/<id>/esc/telemetry`` topic.
+    BadInputError
+        If the file is not an MCAP recording or holds no readable
+        ``/thruster/<id>/esc/telemetry`` messages.
     """
-    path = Path(path)
+    contents = read_mcap(path)
+    path = contents.path
     telemetry: dict[str, list[tuple[int, bytes]]] = {}
     recorded: dict[str, list[tuple[float, str]]] = {}
     used: dict[str, set[int]] = {}
-    truth: dict[str, str] = {}
-    with path.open("rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for record in reader.iter_metadata():
-            if record.name == METADATA_NAME:
-                truth.update(
-                    {
-                        k.removeprefix("labels."): v
-                        for k, v in record.metadata.items()
-                        if k.startswith("labels.")
-                    }
-                )
-        for _, channel, message, decoded in reader.iter_decoded_messages():
-            topic = channel.topic
-            if not topic.startswith("/thruster/"):
-                continue
-            tid = topic.split("/")[2]
-            stamp = decoded.header.stamp
-            ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-            if topic.endswith(_TELEMETRY):
-                telemetry.setdefault(tid, []).append((ns, message.data))
-            elif topic.endswith(_RESIDUAL):
-                used.setdefault(tid, set()).add(ns)
-            elif topic.endswith(_DIAGNOSIS):
-                # The same float as the replayer's stamp_ns * 1e-9, so equal stamps compare equal.
-                recorded.setdefault(tid, []).append((ns * 1e-9, decoded.label))
+    meta = contents.metadata.get(METADATA_NAME, {})
+    truth = {k.removeprefix("labels."): v for k, v in meta.items() if k.startswith("labels.")}
+    problems: list[str] = []
+    skipped: dict[str, int] = {}
+    decoders: dict[int, Callable[[bytes], Any] | None] = {}
+    for cid, _, data in contents.messages:
+        channel = contents.channels.get(cid)
+        match = None if channel is None else _TOPIC.match(channel.topic)
+        if channel is None or match is None:
+            continue
+        if cid not in decoders:
+            usable = channel.schema is not None and channel.schema.name == _TYPES[match["kind"]]
+            decoders[cid] = ros2_decoder(channel) if usable else None
+        decode = decoders[cid]
+        if decode is None:
+            skipped[channel.topic] = skipped.get(channel.topic, 0) + 1
+            continue
+        try:
+            decoded = decode(data)
+            ns = decoded.header.stamp.sec * 1_000_000_000 + decoded.header.stamp.nanosec
+            label = str(decoded.label) if match["kind"] == "fdd/diagnosis" else ""
+        except DECODE_ERRORS:
+            skipped[channel.topic] = skipped.get(channel.topic, 0) + 1
+            continue
+        tid = match["id"]
+        if match["kind"] == "esc/telemetry":
+            telemetry.setdefault(tid, []).append((ns, data))
+        elif match["kind"] == "fdd/residual":
+            used.setdefault(tid, set()).add(ns)
+        else:
+            # The same float as the replayer's stamp_ns * 1e-9, so equal stamps compare equal.
+            recorded.setdefault(tid, []).append((ns * 1e-9, label))
+    problems += [
+        f"{topic}: {n} message(s) of another type or not decodable, skipped"
+        for topic, n in skipped.items()
+    ]
+    warn_if_damaged(contents, tuple(problems))
     if not telemetry:
-        raise BadInputError(f"{path}: no /thruster/<id>/esc/telemetry messages to replay")
+        raise BadInputError(f"{path}: no readable /thruster/<id>/esc/telemetry messages to replay")
     bags = []
     for tid, samples in sorted(telemetry.items()):
         samples.sort(key=lambda s: s[0])
@@ -114,22 +132,31 @@ def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
             keep = np.array([s[0] in used[tid] for s in unique])
         else:
             keep = decimate(np.array([s[0] for s in unique], dtype=float) * 1e-9, period_s)
-        segments = tuple(
-            (float(start), name)
-            for start, _, name in (
-                part.partition(":") for part in truth.get(tid, "").split(";") if part
-            )
-        )
+        if not keep.any():
+            raise BadInputError(f"{path}: thruster {tid} has no sample to replay")
         bags.append(
             ThrusterBag(
                 thruster_id=tid,
                 stamps_ns=tuple(s[0] for s, k in zip(unique, keep, strict=True) if k),
                 raw=tuple(s[1] for s, k in zip(unique, keep, strict=True) if k),
                 recorded=tuple(recorded.get(tid, [])),
-                truth=segments,
+                truth=_segments(path, truth.get(tid, "")),
             )
         )
     return tuple(bags)
+
+
+def _segments(path: Path, text: str) -> tuple[tuple[float, str], ...]:
+    """Ground-truth label segments (start s, class) of ``labels.<id>`` metadata."""
+    try:
+        return tuple(
+            (float(start), name)
+            for start, _, name in (part.partition(":") for part in text.split(";") if part)
+        )
+    except ValueError:
+        raise BadInputError(
+            f"{path}: label metadata {text[:60]!r} is not start_s:class;..."
+        ) from None
 
 
 def collapse(labels: list[str]) -> list[str]:

@@ -1,0 +1,441 @@
+"""One robust reader of MCAP recordings: whatever is recoverable, with the damage said.
+
+Every tool that reads a recording (``read_trace_mcap``, ``replay_check.load_bag``,
+``recording.read_recovered``) goes through :func:`read_mcap`. It walks the records itself
+rather than trusting the summary, so a file cut by ``kill -9`` (no footer, no summary) reads up
+to its last complete record; it checks every chunk's CRC and size, the data section's CRC when
+one was written and the summary's (a summary that fails is not used), skips a chunk that fails
+(its messages are counted from the message indexes behind it) and a record that does not
+parse, and stops where the records no longer fit the file (mapped, not read into memory).
+What was lost is listed in ``McapContents.problems`` and said in one
+:class:`DamagedRecordingWarning`. A file that does not start with the MCAP magic, or from which
+not one message can be read, is refused with ``BadInputError`` (exit 2, one line). No rclpy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import mmap
+import os
+import struct
+import warnings
+import zlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import lz4.frame
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import (
+    Channel,
+    Chunk,
+    DataEnd,
+    Footer,
+    Message,
+    MessageIndex,
+    Metadata,
+    Schema,
+    Statistics,
+)
+from mcap_ros2.decoder import DecoderFactory
+
+from thruster_fdd.core.errors import BadInputError, PartialInputWarning
+
+MAGIC = b"\x89MCAP0\r\n"
+"""The 8 bytes that start (and end) every MCAP file."""
+
+
+_RECORD_HEADER = struct.Struct("<BQ")
+
+
+_PARSERS: dict[int, Callable[[ReadDataStream, int], Any]] = {
+    Opcode.SCHEMA: lambda s, _: Schema.read(s),
+    Opcode.CHANNEL: lambda s, _: Channel.read(s),
+    Opcode.MESSAGE: Message.read,
+    Opcode.CHUNK: lambda s, _: Chunk.read(s),
+    Opcode.MESSAGE_INDEX: lambda s, _: MessageIndex.read(s),
+    Opcode.METADATA: lambda s, _: Metadata.read(s),
+    Opcode.STATISTICS: lambda s, _: Statistics.read(s),
+    Opcode.DATA_END: lambda s, _: DataEnd.read(s),
+    Opcode.FOOTER: lambda s, _: Footer.read(s),
+}
+"""The records a reader needs; every other record (and any future one) is skipped whole."""
+
+
+_KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
+
+
+_PRIVATE_OPCODES = 0x80
+"""Record types from here up are for private use (skipped); below, only the known ones occur."""
+
+
+# What a damaged record can raise while parsing (besides McapError): a length field far beyond
+# the record gives OverflowError or MemoryError.
+_PARSE_ERRORS = (
+    McapError,
+    struct.error,
+    UnicodeDecodeError,
+    ValueError,
+    KeyError,
+    IndexError,
+    OverflowError,
+    MemoryError,
+)
+
+
+class DamagedRecordingWarning(PartialInputWarning):
+    """A recording was read only in part; the text says what was lost and how much."""
+
+
+@dataclass(frozen=True)
+class McapChannel:
+    """A channel of a recording: topic, message encoding and its schema (None if unknown)."""
+
+    topic: str
+    message_encoding: str
+    schema: Schema | None
+
+
+@dataclass(frozen=True)
+class McapContents:
+    """What could be read from an MCAP file.
+
+    Attributes
+    ----------
+    path : Path
+        The file.
+    channels : dict of int to McapChannel
+        Every channel seen, by id.
+    messages : list of (int, int, bytes)
+        (channel id, log time ns, data) of every message read, in file order.
+    metadata : dict of str to dict of str to str
+        Metadata records by name (a later record of the same name adds to the earlier).
+    complete : bool
+        Whether the file ended properly: footer and closing magic present.
+    problems : tuple of str
+        What was lost or could not be checked, each with its extent; empty for a sound file.
+    expected_messages : int or None
+        The message count of the file's statistics record, when it has one.
+    """
+
+    path: Path
+    channels: dict[int, McapChannel]
+    messages: list[tuple[int, int, bytes]]
+    metadata: dict[str, dict[str, str]]
+    complete: bool
+    problems: tuple[str, ...]
+    expected_messages: int | None = None
+
+
+@dataclass
+class _Walk:
+    """Mutable state of one pass over a file."""
+
+    path: Path
+    channels: dict[int, McapChannel] = field(default_factory=dict)
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    messages: list[tuple[int, int, bytes]] = field(default_factory=list)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+    raw_channels: dict[int, Channel] = field(default_factory=dict)
+    bad_chunks: int = 0
+    lost_in_chunks: int = 0
+    lost_span_ns: int = 0
+    last_chunk_bad: bool = False
+    expected: int | None = None
+
+    def add_schema(self, schema: Schema) -> None:
+        # The first definition wins: the summary repeats them outside any checked chunk.
+        self.schemas.setdefault(schema.id, schema)
+
+    def add_channel(self, channel: Channel) -> None:
+        self.raw_channels.setdefault(channel.id, channel)
+
+    def resolve_channels(self) -> None:
+        """Channels with their schemas (a schema may come after its channel in a summary)."""
+        self.channels = {
+            cid: McapChannel(ch.topic, ch.message_encoding, self.schemas.get(ch.schema_id))
+            for cid, ch in self.raw_channels.items()
+        }
+        orphans = sum(1 for cid, _, _ in self.messages if cid not in self.channels)
+        if orphans:
+            self.problems.append(f"{orphans} message(s) on channels whose definition was lost")
+
+    def add_message(self, message: Message) -> None:
+        self.messages.append((message.channel_id, message.log_time, message.data))
+
+
+def _describe_start(head: bytes) -> str:
+    """A few words on what a file that is not MCAP starts with."""
+    if not head:
+        return "it is empty"
+    try:
+        text = head.decode("ascii")
+    except UnicodeDecodeError:
+        return f"it starts with bytes {head[:8].hex(' ')}"
+    line = text.splitlines()[0] if text.splitlines() else text
+    return f"it starts with the text {line[:40]!r}"
+
+
+def _records(
+    data: bytes | mmap.mmap, start: int, end: int, stopped: list[str]
+) -> Iterator[tuple[int, int, bytes]]:
+    """(offset, opcode, body) of the records in ``data[start:end]`` that fit, one at a time
+    (a recording is not copied whole); why the walk stopped early is appended to ``stopped``."""
+    pos = start
+    while pos < end:
+        if end - pos < _RECORD_HEADER.size:
+            stopped.append(f"{end - pos} stray bytes at byte {pos}")
+            return
+        opcode, length = _RECORD_HEADER.unpack(data[pos : pos + _RECORD_HEADER.size])
+        body_start = pos + _RECORD_HEADER.size
+        if length > end - body_start:
+            stopped.append(f"a record at byte {pos} runs past the end ({length} bytes declared)")
+            return
+        yield pos, opcode, bytes(data[body_start : body_start + length])
+        pos = body_start + length
+
+
+_FOOTER = struct.Struct("<BQQQI")
+
+
+_SUMMARY_COPIES = frozenset({Opcode.SCHEMA, Opcode.CHANNEL, Opcode.STATISTICS})
+"""Records the summary repeats from the (chunk-checked) data section."""
+
+
+def _damaged_summary(data: bytes | mmap.mmap) -> bool:
+    """Whether the footer's summary CRC fails (False when there is no footer or no CRC). The
+    summary lies outside every chunk, so only its CRC vouches for the schemas, channels and
+    counts it repeats."""
+    end = len(data) - len(MAGIC) - _FOOTER.size
+    if end < len(MAGIC) or data[len(data) - len(MAGIC) :] != MAGIC:
+        return False
+    opcode, length, start, _, crc = _FOOTER.unpack(data[end : end + _FOOTER.size])
+    if opcode != Opcode.FOOTER or length != _FOOTER.size - 9:
+        return True  # a closing magic without a footer before it: nothing vouches for the end
+    if start == 0 or crc == 0:
+        return False  # no summary, or one written without a CRC
+    covered = end + _FOOTER.size - 4  # through summary_offset_start
+    return not len(MAGIC) <= start <= end or _crc32(data, covered, start) != crc
+
+
+def _crc32(data: bytes | mmap.mmap, end: int, start: int = 0) -> int:
+    """CRC-32 of ``data[start:end]``, a MiB at a time (no copy of a whole recording)."""
+    crc = 0
+    for a in range(start, end, 1 << 20):
+        crc = zlib.crc32(data[a : min(end, a + (1 << 20))], crc)
+    return crc
+
+
+def _parse(opcode: int, body: bytes) -> Any:
+    parser = _PARSERS.get(opcode)
+    if parser is None:
+        return None
+    return parser(ReadDataStream(io.BytesIO(body)), len(body))
+
+
+MAX_CHUNK_BYTES = 256 * 1024 * 1024
+"""Largest uncompressed chunk read (the recorder writes 512 KiB by default): a bound on what a
+damaged or hostile size field can make the reader allocate."""
+
+
+def _decompress(chunk: Chunk) -> bytes:
+    size = chunk.uncompressed_size
+    if size > MAX_CHUNK_BYTES:
+        raise ValueError(f"declares {size} bytes uncompressed, above {MAX_CHUNK_BYTES}")
+    if chunk.compression == "zstd":
+        return zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
+    if chunk.compression == "lz4":
+        return lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=size)
+    if chunk.compression == "":
+        return bytes(chunk.data)
+    raise ValueError(f"unknown compression {chunk.compression!r}")
+
+
+def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> None:
+    walk.last_chunk_bad = True
+    span_ns = max(0, chunk.message_end_time - chunk.message_start_time)
+    try:
+        data = _decompress(chunk)
+    except (zstandard.ZstdError, RuntimeError, ValueError) as exc:
+        walk.problems.append(f"chunk at byte {offset} does not decompress ({exc})")
+        walk.bad_chunks += 1
+        walk.lost_span_ns += span_ns
+        return
+    if len(data) != chunk.uncompressed_size or (
+        chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc
+    ):
+        walk.problems.append(f"chunk at byte {offset} fails its CRC")
+        walk.bad_chunks += 1
+        walk.lost_span_ns += span_ns
+        return
+    stopped: list[str] = []
+    parsed = []
+    try:
+        parsed = [
+            (opcode, _parse(opcode, body))
+            for _, opcode, body in _records(data, 0, len(data), stopped)
+        ]
+    except _PARSE_ERRORS as exc:
+        stopped.append(f"a record does not parse ({type(exc).__name__})")
+    if stopped:
+        # The CRC matched, so the writer itself wrote this: keep nothing of it.
+        walk.problems.append(f"chunk at byte {offset} is malformed: {stopped[0]}")
+        walk.bad_chunks += 1
+        walk.lost_span_ns += span_ns
+        return
+    walk.last_chunk_bad = False
+    for opcode, record in parsed:
+        _take(walk, opcode, record)
+
+
+def _take(walk: _Walk, opcode: int, record: Any) -> None:
+    if opcode == Opcode.SCHEMA:
+        walk.add_schema(record)
+    elif opcode == Opcode.CHANNEL:
+        walk.add_channel(record)
+    elif opcode == Opcode.MESSAGE:
+        walk.add_message(record)
+
+
+def read_mcap(path: str | Path, *, require_messages: bool = True) -> McapContents:
+    """Read every message that can be recovered from an MCAP file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    require_messages : bool
+        Refuse a file from which no message can be read. False for a recorder's own files,
+        where a file cut before its first message (even inside the magic) is an empty result.
+
+    Returns
+    -------
+    McapContents
+        Channels, messages, metadata and the problems met (see the module docstring).
+
+    Raises
+    ------
+    BadInputError
+        If the file does not start with the MCAP magic (e.g. a CSV renamed ``.mcap``), or
+        holds no message that can be read (``require_messages``).
+    OSError
+        If the file cannot be read.
+    """
+    path = Path(path)
+    with path.open("rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        # Mapped, not read: a recording (256 MB by default) costs address space, not a copy.
+        data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
+    try:
+        return _read(path, data, require_messages)
+    finally:
+        if isinstance(data, mmap.mmap):
+            data.close()
+
+
+def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapContents:
+    """``read_mcap`` on the file's bytes."""
+    if data[: len(MAGIC)] != MAGIC:
+        if require_messages or not MAGIC.startswith(data[: len(MAGIC)]):
+            raise BadInputError(f"{path}: not an MCAP recording ({_describe_start(data[:40])})")
+        problem = f"the file ends early ({len(data)} bytes, inside the magic): the rest is lost"
+        return McapContents(path, {}, [], {}, False, (problem,))
+    walk = _Walk(path)
+    summary_damaged = _damaged_summary(data)
+    if summary_damaged:
+        walk.problems.append("the summary fails its CRC: its schemas, channels and counts unused")
+    stopped: list[str] = []
+    footer_end = None
+    in_summary = False
+    for offset, opcode, body in _records(data, len(MAGIC), len(data), stopped):
+        if summary_damaged and in_summary and opcode in _SUMMARY_COPIES:
+            continue
+        try:
+            if not (opcode in _KNOWN_OPCODES or opcode >= _PRIVATE_OPCODES):
+                raise ValueError(f"unknown record type {opcode:#04x}")
+            record = _parse(opcode, body)
+        except _PARSE_ERRORS as exc:
+            # Perhaps a chunk: the message indexes behind it count what it held.
+            walk.problems.append(f"record at byte {offset} is damaged ({exc})")
+            walk.last_chunk_bad = True
+            continue
+        if opcode == Opcode.CHUNK:
+            _read_chunk(walk, record, offset)
+        elif opcode == Opcode.MESSAGE_INDEX:
+            if walk.last_chunk_bad:
+                walk.lost_in_chunks += len(record.records)
+        elif opcode == Opcode.METADATA:
+            walk.metadata.setdefault(record.name, {}).update(record.metadata)
+        elif opcode == Opcode.STATISTICS:
+            walk.expected = record.message_count
+        elif opcode == Opcode.DATA_END:
+            in_summary = True
+            if record.data_section_crc not in (0, _crc32(data, offset)):
+                walk.problems.append("the data section fails its CRC")
+        elif opcode == Opcode.FOOTER:
+            footer_end = offset + _RECORD_HEADER.size + len(body)
+            break
+        else:
+            _take(walk, opcode, record)
+    complete = footer_end is not None and data[footer_end:] == MAGIC
+    if footer_end is None:
+        end = stopped[0] if stopped else "no footer"
+        walk.problems.append(f"the file ends early ({end}; {len(data)} bytes): the rest is lost")
+    elif not complete:
+        walk.problems.append("the closing magic after the footer is missing or damaged")
+    walk.resolve_channels()
+    if walk.bad_chunks or walk.lost_in_chunks:
+        span = f" spanning {walk.lost_span_ns * 1e-9:.1f} s" if walk.lost_span_ns else ""
+        walk.problems.append(
+            f"{walk.bad_chunks} damaged chunk(s) skipped: {walk.lost_in_chunks} message(s) "
+            f"lost{span}"
+        )
+    if not walk.messages and require_messages:
+        summary = "; ".join(walk.problems) or "it holds no messages"
+        raise BadInputError(f"{path}: no message could be read ({summary})")
+    return McapContents(
+        path,
+        walk.channels,
+        walk.messages,
+        walk.metadata,
+        complete,
+        tuple(walk.problems),
+        walk.expected,
+    )
+
+
+def warn_if_damaged(contents: McapContents, extra: tuple[str, ...] = ()) -> None:
+    """Issue one :class:`DamagedRecordingWarning` saying what of ``contents`` was lost."""
+    problems = contents.problems + extra
+    if not problems:
+        return
+    read = len(contents.messages)
+    of = f" of {contents.expected_messages}" if contents.expected_messages else ""
+    warnings.warn(
+        DamagedRecordingWarning(
+            f"{contents.path}: recording read in part ({read}{of} messages read): "
+            f"{'; '.join(problems)}"
+        ),
+        stacklevel=3,
+    )
+
+
+def ros2_decoder(channel: McapChannel) -> Callable[[bytes], Any] | None:
+    """A CDR decoder for the channel's ``ros2msg`` schema; None if it has another encoding,
+    no schema, or a schema that does not parse."""
+    if channel.schema is None:
+        return None
+    try:
+        # The vendored rosidl parser prints a line to stderr before raising: keep it off the
+        # user's terminal (the warning says the schema does not parse).
+        with contextlib.redirect_stderr(io.StringIO()):
+            return DecoderFactory().decoder_for(channel.message_encoding, channel.schema)
+    except Exception:
+        # The schema text is input and its parser raises many kinds: any error means unusable.
+        return None
