@@ -7,6 +7,7 @@ import numpy as np
 from thruster_fdd.core.sim.config import SimConfig
 from thruster_fdd.core.sim.plant import (
     RAD_S_TO_RPM,
+    ConditionSpec,
     Plant,
     check_voltage,
     condition_spec,
@@ -63,6 +64,7 @@ def steady_state(
     *,
     condition: str = "nominal_15v",
     reported: bool = False,
+    spec: ConditionSpec | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Noise-free steady speed and bus current of the nominal unit (spread is not applied).
 
@@ -79,6 +81,8 @@ def steady_state(
     reported : bool
         Apply the measurement's reporting floor (``rpm_floor``, ``floor_zeroes_current``), as
         the telemetry would show it; noise, quantisation and outliers are never applied.
+    spec : ConditionSpec or None
+        Physics of the condition instead of ``condition``'s (``plant.severity_spec``).
 
     Returns
     -------
@@ -88,7 +92,7 @@ def steady_state(
         Steady bus current, A.
     """
     check_voltage(voltage)
-    pl = make_plant(config, condition_spec(condition), voltage)
+    pl = make_plant(config, spec or condition_spec(condition), voltage)
     u = np.clip(np.asarray(command, dtype=float), -1.0, 1.0)
     if u.ndim != 1:
         raise ValueError(f"command must be 1-D, got shape {u.shape}")
