@@ -55,7 +55,7 @@ def graph() -> Iterator[Graph]:
         probe.node.create_subscription(
             DiagnosticArray,
             "/diagnostics",
-            lambda m: diagnostics.extend(s for s in m.status if s.name == "/recorder"),
+            lambda m: diagnostics.extend(s for s in m.status if s.name == "thruster_fdd: recorder"),
             reliable,
         )
         pub = probe.node.create_publisher(EscTelemetry, "/thruster/r0/esc/telemetry", reliable)

@@ -168,9 +168,10 @@ class Replayer:
             self._matched.append(sub.get_publisher_count)
 
     def _on_status(self, msg: Any) -> None:
+        from thruster_fdd.nodes.common import parse_status_name
+
         for status in msg.status:
-            namespace, _, name = status.name.rpartition("/")
-            tid = namespace.rpartition("/")[2]
+            name, tid = parse_status_name(status.name) or ("", "")
             for kv in status.values:
                 if tid in self.counters and kv.key == COUNTERS.get(name):
                     self.counters[tid][name] = int(kv.value)

@@ -246,6 +246,11 @@ def run(args: argparse.Namespace) -> int:
             )
             commands["recorder"] = recorder
         commands |= _stage_commands([p.id for p in plans], models)
+        # One reference thruster type for the vehicle's effectiveness estimates: the first's.
+        ids = ",".join(p.id for p in plans)
+        commands["health"] = node_command(
+            "health", "/", {"thruster_ids": f"[{ids}]", "preset": plans[0].preset}
+        )
         for plan in plans:
             commands |= _commands(plan, rate, run_dir)
         for name, cmd in commands.items():

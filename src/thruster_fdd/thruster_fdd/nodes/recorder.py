@@ -26,6 +26,7 @@ from thruster_fdd.nodes.common import (
     diagnostics_publisher,
     publish_status,
     run,
+    status_name,
 )
 
 _THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
@@ -204,9 +205,11 @@ class Recorder(Node):
             self,
             self._diag_pub,
             level,
+            status_name("recorder"),
             message,
-            str(self._output_dir),
+            self._metadata["vehicle"],
             [
+                ("output_dir", str(self._output_dir)),
                 ("messages_per_s", f"{rate:.1f}"),
                 ("topics", str(len(self._subscribed))),
                 ("dropped", str(self._dropped)),

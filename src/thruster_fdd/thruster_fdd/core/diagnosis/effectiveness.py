@@ -29,20 +29,15 @@ Method:
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from thruster_fdd.core.sim.config import SimConfig
-from thruster_fdd.core.sim.plant import (
-    FAULT_FAMILIES,
-    MAX_SEVERITY,
-    RAD_S_TO_RPM,
-    make_plant,
-    severity_spec,
-)
-from thruster_fdd.core.sim.steady import steady_state
+from thruster_fdd.core.sim.plant import FAULT_FAMILIES, MAX_SEVERITY, RAD_S_TO_RPM, severity_spec
+from thruster_fdd.core.sim.steady import steady_curves
 
 SEVERITY_STEP = 0.1
 """Spacing of the severity grid of the reference curves."""
@@ -58,7 +53,7 @@ MIN_CHANGE = 0.2
 """Smallest departure of the recent severity (blades lost, fouling level) that counts as a
 change of the fault (``EffectivenessEstimator``)."""
 
-_COMMANDS = np.linspace(0.0, 1.0, 101)  # command magnitudes of the curves, both directions
+_COMMANDS = np.linspace(0.0, 1.0, 51)  # command magnitudes of the curves, both directions
 _SPEED_POINTS = 160  # speed grid of the power-at-speed tables
 _TYPICAL = np.linspace(0.3, 1.0, 8)  # commands for the gain when the window asks no thrust
 
@@ -99,57 +94,92 @@ class FamilyCurves:
 
 class ThrustReference:
     """Steady-state reference curves of a thruster type (its simulator configuration, spread not
-    applied), computed per family, direction and supply-voltage bin when first needed.
+    applied), computed per supply-voltage bin when first needed (about 2 s a bin for ``t100``).
 
     Parameters
     ----------
     config : SimConfig
         The thruster type (a preset such as ``t100`` / ``t200``, or a fitted configuration).
+    background : bool
+        Compute a missing bin on a worker thread and answer None until it is there (a node's
+        callbacks must not block for seconds), instead of computing it at once.
     """
 
-    def __init__(self, config: SimConfig) -> None:
+    def __init__(self, config: SimConfig, *, background: bool = False) -> None:
         self.config = config
         self.severities = np.round(np.arange(0.0, MAX_SEVERITY + 1e-9, SEVERITY_STEP), 10)
-        self._cache: dict[tuple[str, float, bool], FamilyCurves] = {}
+        self._cache: dict[float, dict[tuple[str, bool], FamilyCurves]] = {}
+        self._background = background
+        self._pending: set[float] = set()
+        self._lock = threading.Lock()
 
     @staticmethod
     def voltage_bin(voltage: float) -> float:
         """The supply voltage of the curves used for a measured ``voltage`` V."""
         return round(min(max(voltage, 6.0), 30.0) / VOLTAGE_STEP_V) * VOLTAGE_STEP_V
 
-    def curves(self, family: str, voltage: float, reverse: bool) -> FamilyCurves:
-        """The curves of ``family`` at the bin of ``voltage`` V, forward or ``reverse``."""
-        key = (family, self.voltage_bin(voltage), reverse)
-        if key not in self._cache:
-            self._cache[key] = self._make(*key)
-        return self._cache[key]
+    def curves(self, family: str, voltage: float, reverse: bool) -> FamilyCurves | None:
+        """The curves of ``family`` at the bin of ``voltage`` V, forward or ``reverse``; None
+        while a background computation of the bin runs."""
+        key = self.voltage_bin(voltage)
+        curves = self._cache.get(key)
+        if curves is None:
+            if not self._background:
+                curves = self._cache[key] = self._make(key)
+            else:
+                self._request(key)
+                return None
+        return curves[(family, reverse)]
 
-    def _make(self, family: str, voltage: float, reverse: bool) -> FamilyCurves:
-        sign = -1.0 if reverse else 1.0
-        rows = []
-        for s in self.severities:
-            spec = severity_spec(family, float(s), voltage)
-            rpm, current = steady_state(self.config, sign * _COMMANDS, voltage, spec=spec)
-            plant = make_plant(self.config, spec, voltage)
-            w = np.abs(rpm) / RAD_S_TO_RPM
-            k_t = plant.k_thrust_rev if reverse else plant.k_thrust
-            v_bus = plant.v_supply - plant.r_int * current
-            rows.append((w, v_bus * current, k_t * w * w))
-        speeds = np.linspace(0.0, max(float(r[0].max()) for r in rows), _SPEED_POINTS)
-        power = np.empty((len(rows), len(speeds)))
-        for k, (w, p, _) in enumerate(rows):
-            moving = w > 0.0
-            if moving.sum() < 2:
-                power[k] = p[-1]
-                continue
-            power[k] = np.interp(speeds, w[moving], p[moving])
-        return FamilyCurves(
-            severities=self.severities,
-            thrust=np.array([r[2] for r in rows]),
-            speeds=speeds,
-            power=power,
-            informative_speed=MIN_SPEED_FRACTION * float(rows[0][0].max()),
-        )
+    def _request(self, key: float) -> None:
+        with self._lock:
+            if key in self._pending:
+                return
+            self._pending.add(key)
+
+        def work() -> None:
+            self._cache[key] = self._make(key)
+            with self._lock:
+                self._pending.discard(key)
+
+        threading.Thread(target=work, name=f"curves-{key:g}V", daemon=True).start()
+
+    def _make(self, voltage: float) -> dict[tuple[str, bool], FamilyCurves]:
+        """Every family and direction at ``voltage`` V, in one steady-state solve."""
+        specs = [
+            severity_spec(f, float(s), voltage) for f in FAULT_FAMILIES for s in self.severities
+        ]
+        commands = np.concatenate([_COMMANDS, -_COMMANDS])
+        rpm, current, plants = steady_curves(self.config, commands, voltage, specs)
+        k = len(self.severities)
+        n = len(_COMMANDS)
+        out = {}
+        for i, family in enumerate(FAULT_FAMILIES):
+            rows = slice(i * k, (i + 1) * k)
+            for reverse in (False, True):
+                cols = slice(n, 2 * n) if reverse else slice(0, n)
+                w = np.abs(rpm[rows, cols]) / RAD_S_TO_RPM
+                ibus = current[rows, cols]
+                fam = plants[rows]
+                k_t = np.array([p.k_thrust_rev if reverse else p.k_thrust for p in fam])
+                r_int = np.array([p.r_int for p in fam])
+                power = (voltage - r_int[:, None] * ibus) * ibus
+                speeds = np.linspace(0.0, float(w.max()), _SPEED_POINTS)
+                table = np.empty((k, len(speeds)))
+                for j in range(k):
+                    moving = w[j] > 0.0
+                    if moving.sum() < 2:
+                        table[j] = power[j, -1]
+                    else:
+                        table[j] = np.interp(speeds, w[j, moving], power[j, moving])
+                out[(family, reverse)] = FamilyCurves(
+                    severities=self.severities,
+                    thrust=k_t[:, None] * w * w,
+                    speeds=speeds,
+                    power=table,
+                    informative_speed=MIN_SPEED_FRACTION * float(w[0].max()),
+                )
+        return out
 
 
 @dataclass(frozen=True)
@@ -302,6 +332,7 @@ class EffectivenessEstimator:
         self._fast = _Evidence(k, self.change_memory_s)
         self._next_check_s = self.change_memory_s
         self._last_t: float | None = None
+        self._last = NO_EVIDENCE
         self._recent.clear()
 
     def push(self, t_s: float, command: float, voltage: float, rpm: float, current: float) -> None:
@@ -320,13 +351,14 @@ class EffectivenessEstimator:
         # Braking (the rotor turning against the command) draws no propeller load.
         if dt <= 0.0 or (command != 0.0 and (command < 0.0) != reverse):
             return
-        if speed < self.reference.curves(FAULT_FAMILIES[0], voltage, reverse).informative_speed:
+        tables = [self.reference.curves(f, voltage, reverse) for f in FAULT_FAMILIES]
+        if tables[0] is None or speed < tables[0].informative_speed:
             return
         power = voltage * current
         var = self.power_noise_w**2 + (self.power_rel_error * power) ** 2
         errors = {}
-        for family in FAULT_FAMILIES:
-            err = self.reference.curves(family, voltage, reverse).power_at(speed) - power
+        for family, curves in zip(FAULT_FAMILIES, tables, strict=True):
+            err = curves.power_at(speed) - power
             errors[family] = err * err / var
         self._slow.add(dt, errors)
         self._fast.add(dt, errors)
@@ -353,31 +385,48 @@ class EffectivenessEstimator:
             self.reference.severities, self.correlation_s
         )
         gains = self._gains(family)
+        if gains is None:
+            return self._last
         value = float(np.interp(severity, self.reference.severities, gains))
         slope = float(np.max(np.abs(np.diff(gains)))) / SEVERITY_STEP
         loss_std = self.loss_rel_std * max(1.0 - value, 0.0)
         std = math.sqrt(self.floor_std**2 + (slope * severity_std) ** 2 + loss_std**2)
-        return Effectiveness(value, std, family, severity, severity_std, self._slow.seconds)
+        self._last = Effectiveness(value, std, family, severity, severity_std, self._slow.seconds)
+        return self._last
 
-    def _gains(self, family: str) -> np.ndarray:
-        """Least-squares thrust gain of every severity over the recent commands, shape (K,)."""
+    def _gains(self, family: str) -> np.ndarray | None:
+        """Least-squares thrust gain of every severity over the recent commands, shape (K,);
+        None while the curves of the window's supply are computed in the background."""
         voltage = float(np.median([v for _, _, v in self._recent])) if self._recent else 15.0
+        commands = np.array([c for _, c, _ in self._recent])
         num = np.zeros(len(self.reference.severities))
         den = 0.0
-        commands = np.array([c for _, c, _ in self._recent])
         for reverse in (False, True):
+            curves = self.reference.curves(family, voltage, reverse)
+            if curves is None:
+                return None
             magnitudes = np.abs(commands[commands < 0.0] if reverse else commands[commands > 0.0])
             if magnitudes.size == 0:
                 continue
-            curves = self.reference.curves(family, voltage, reverse)
-            thrust = np.array([np.interp(magnitudes, _COMMANDS, row) for row in curves.thrust])
+            thrust = _at_commands(curves.thrust, magnitudes)
             num += thrust @ thrust[0]
             den += float(thrust[0] @ thrust[0])
         if den <= 1e-9:  # no thrust asked for: the gain over typical commands, forward
             curves = self.reference.curves(family, voltage, False)
-            thrust = np.array([np.interp(_TYPICAL, _COMMANDS, row) for row in curves.thrust])
+            if curves is None:
+                return None
+            thrust = _at_commands(curves.thrust, _TYPICAL)
             return thrust @ thrust[0] / float(thrust[0] @ thrust[0])
         return num / den
+
+
+def _at_commands(table: np.ndarray, magnitudes: np.ndarray) -> np.ndarray:
+    """Rows of ``table`` (K, len(_COMMANDS)) interpolated at command ``magnitudes`` (n,):
+    shape (K, n)."""
+    x = np.clip(magnitudes, 0.0, 1.0) * (len(_COMMANDS) - 1)
+    i = np.minimum(x.astype(int), len(_COMMANDS) - 2)
+    f = x - i
+    return table[:, i] * (1.0 - f) + table[:, i + 1] * f
 
 
 def _parabolic_minimum(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
