@@ -272,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
         ]
         print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
         if not args.no_record:
-            print(f"recording every topic to {args.record_dir.resolve()}/{prefix}_*.mcap")
+            print(f"recording every topic to the bag {args.record_dir.resolve() / prefix}")
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period
