@@ -7,10 +7,10 @@ QoS profiles and message counts, custom data) and the size/duration-split files
 ``<bag>_<index>.mcap`` in rosbag2's MCAP layout (profile ``ros2``, schema encoding ``ros2msg``
 with the definitions of ``core.traces.mcap_io.describe``, message encoding ``cdr``, each
 channel's ``offered_qos_profiles`` in its metadata as the MCAP ros2 profile requires). A type
-nobody can describe is recorded with an empty definition rather than stopping the recorder. The chunk in
-progress is closed and written through to the OS, and ``metadata.yaml`` rewritten, every
-``flush_period_s``, so a killed recorder leaves all but the last period readable as a bag
-(:func:`read_recovered` reads a cut file).
+nobody can describe is recorded with an empty definition rather than stopping the recorder.
+The chunk in progress is closed and written through to the OS, and ``metadata.yaml``
+rewritten, every ``flush_period_s``, so a killed recorder leaves all but the last period
+readable (:func:`read_recovered` reads a cut file).
 """
 
 from __future__ import annotations
