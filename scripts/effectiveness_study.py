@@ -8,18 +8,21 @@ commands, same supply) on a command profile, streams the faulty telemetry at 10 
 ``--settle`` s, the estimate with the truth: the least-squares gain of the faulty thrust against
 the healthy twin's over the estimator's window (``Trace.extra["thrust"]``, noise-free).
 
-The family is given by the true class (``--family label``: what the health node does once the
-classifier names the fault) or chosen by the estimator alone (``free``). Off-family variants
-(``--variants``) scale the thrust of a blade or fouling fault by +-10 % relative to what the
-severity ladder says: faults the estimator's model does not describe exactly. A real T200 check
-(``--t200 DIR``) runs the healthy bench sheets (scripts/t200_to_trace.py) through the estimator
-with the t200 reference (truth 1.0).
+The estimator chooses the fault family itself (the health node does not use the label).
+Off-family variants (``--variants``) scale the thrust loss of a sweep fault by 0.75 and 1.25 at
+the same load: faults the estimator's model does not describe exactly. Structural variants
+(``--structural``) simulate units built unlike the reference (no dead time or ESC lag, a slew
+limit and twice the deadband, a 5x supply sag, an 8 A current limit, twice the friction) while
+the reference stays the preset. ``--onset S`` starts the fault at S s (healthy before) and adds
+the time to settle within 0.1. A real T200 check (``--t200 DIR``) runs the healthy bench sheets
+(scripts/t200_to_trace.py) through the estimator with the t200 reference (truth 1.0).
 
 Usage (after ``. scripts/bootstrap.sh``)::
 
     python scripts/effectiveness_study.py --seeds 20 --first-seed 500 --out out/eff
-        [--signals mission multilevel] [--duration 300] [--preset t100] [--family label]
-        [--variants] [--t200 ../shared/data/t200] [--plot docs/img/effectiveness.png]
+        [--signals mission multilevel] [--duration 300] [--preset t100] [--variants]
+        [--structural] [--onset 120 --settle 0] [--t200 ../shared/data/t200]
+        [--plot docs/img/effectiveness.png] [--replot RUNS_JSON]
 
 Writes ``OUT/runs.json`` (every run's errors) and prints a Markdown table.
 """
@@ -74,7 +77,7 @@ class Case:
     severity : float
         Severity of the family (0 healthy).
     label : str
-        The class a correct diagnosis names (fixes the family in ``--family label``).
+        The class the simulator names the condition with (the nearest class).
     spec : ConditionSpec
         The physics simulated.
     """
@@ -314,12 +317,13 @@ def _plot(path: Path, per_case: dict[str, list[dict[str, np.ndarray]]]) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     names = [n for n in per_case if n in SEVERITY_SWEEP or n in HEALTHY]
-    for name in names:
+    colors = plt.cm.tab20(np.linspace(0.0, 1.0, 20))
+    for i, name in enumerate(names):
         runs = per_case[name]
         truth = np.concatenate([r["truth"] for r in runs])
         value = np.concatenate([r["value"] for r in runs])
         if truth.size:
-            axes[0].scatter(truth, value, s=2, alpha=0.3, label=name)
+            axes[0].scatter(truth, value, s=2, alpha=0.3, label=name, color=colors[i % 20])
     axes[0].plot([0.3, 1.05], [0.3, 1.05], "k--", lw=0.8)
     axes[0].set_xlabel("true effectiveness (simulated thrust / healthy twin's)")
     axes[0].set_ylabel("estimated effectiveness")
@@ -350,7 +354,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--t200", type=Path, metavar="DIR")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--plot", type=Path)
+    p.add_argument("--replot", type=Path, metavar="RUNS_JSON", help="only plot a former run")
     args = p.parse_args(argv)
+    if args.replot is not None:
+        runs = json.loads(args.replot.read_text())["runs"]
+        _plot(
+            args.plot,
+            {n: [{k: np.asarray(v) for k, v in r.items()} for r in rs] for n, rs in runs.items()},
+        )
+        return 0
     config = load_config(args.preset)
     reference = ThrustReference(config)
     units = {"": config}
@@ -378,7 +390,10 @@ def main(argv: list[str] | None = None) -> int:
     rows = [(name, summary(runs, onset)) for name, runs in per_case.items()]
     faults = [r for n, runs in per_case.items() for r in runs if n in SEVERITY_SWEEP]
     rows.append(("all sweep faults", summary(faults, onset)))
-    rows.append(("all", summary([r for runs in per_case.values() for r in runs])))
+    family = [
+        r for n, runs in per_case.items() for r in runs if n in SEVERITY_SWEEP or n in HEALTHY
+    ]
+    rows.append(("healthy and sweep faults", summary(family, onset)))
     if args.t200 is not None:
         rows.append(("real T200 sheets, healthy (t200 reference)", t200_check(args.t200)))
     table = _table(rows)
