@@ -51,6 +51,8 @@ def main() -> None:
             "__ns:=/thruster/bench",
             "-p",
             f"model_dir:={default_models_dir() / 'nominal'}",
+            "-p",
+            "thruster_id:=bench",
         ],
         stderr=subprocess.DEVNULL,
     )
@@ -62,7 +64,7 @@ def main() -> None:
 
     def on_diag(msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name == "/thruster/bench/nominal_model":
+            if status.name == "thruster_fdd: nominal_model bench":
                 values = {kv.key: kv.value for kv in status.values}
                 if float(values["residual_rate_hz"]) > 0:
                     windows.append({k: float(values[k]) for k in ("median_step_us", "p99_step_us")})

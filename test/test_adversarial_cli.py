@@ -67,6 +67,7 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
         f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(8)
     )
     (d / "bomb.yaml").write_text(bomb + "thrusters: [*i]\n")
+    (d / "binary.yaml").write_bytes(bytes(range(256)) * 4)
     return d
 
 
@@ -111,6 +112,7 @@ BAD_INPUT: list[tuple[str, str]] = [
     ("simulate --out {w}/afile/x.csv", "is a file"),
     ("simulate --out {w}/x.txt", ".csv or .mcap"),
     ("simulate --config {w}/bomb.yaml --out {w}/x.csv", "anchors"),
+    ("simulate --config {w}/binary.yaml --out {w}/x.csv", "not valid YAML"),
     ("simulate --thruster-id 'bad id' --out {w}/x.csv", "ROS name"),
     ("up --config {w}/types.yaml", "rate_hz must be a number"),
     ("up --config {w}/seed.yaml", "seed must be an integer"),
@@ -170,6 +172,7 @@ BAD_INPUT: list[tuple[str, str]] = [
     ("diagnose {w}/tiny.mcap", "no message could be read"),
     ("diagnose {w}/flip.mcap", "damaged chunk"),
     ("diagnose {w}/pwm.csv", "pulse width"),
+    ("diagnose {w}/one.csv", "no full decision window"),
     ("diagnose {w}/ok.csv --models {w}/infinite", "'temperature' is inf"),
     ("diagnose {w}/ok.csv --models {w}/program", "model.pt2: SHA-256"),
 ]

@@ -143,10 +143,18 @@ def test_message_contract() -> None:
     constants = [getattr(Diagnosis, name.upper()) for name in CLASS_NAMES]
     assert sorted(constants) == list(range(1, len(CLASS_NAMES) + 1))
     assert Diagnosis.UNKNOWN == 0
+    from thruster_fdd_msgs.msg import ThrusterHealth, VehicleHealth
+
+    assert {"effectiveness", "effectiveness_std", "faulty", "condition", "label"} <= set(
+        ThrusterHealth.get_fields_and_field_types()
+    )
+    assert {"thrusters", "faulty_mask", "stale_mask"} <= set(
+        VehicleHealth.get_fields_and_field_types()
+    )
 
 
 @pytest.mark.parametrize(
-    "module", ["esc_driver", "command_player", "nominal_model", "recorder", "classifier"]
+    "module", ["esc_driver", "command_player", "nominal_model", "recorder", "classifier", "health"]
 )
 def test_readme_lists_every_node_parameter_with_its_default(module: str) -> None:
     import importlib

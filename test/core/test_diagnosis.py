@@ -16,7 +16,13 @@ from thruster_fdd.core.diagnosis.evaluation import onset_latency
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, window_features
 from thruster_fdd.core.diagnosis.metrics import confusion
 from thruster_fdd.core.diagnosis.model import ClassifierModel, softmax
-from thruster_fdd.core.diagnosis.offline import diagnose_trace, trace_decisions
+from thruster_fdd.core.diagnosis.offline import (
+    diagnose_trace,
+    first_fault,
+    label_events,
+    overall_label,
+    trace_decisions,
+)
 from thruster_fdd.core.diagnosis.stream import Decision, DiagnosisStream
 from thruster_fdd.core.diagnosis.table3 import Table3Config, run_table3
 from thruster_fdd.core.diagnosis.training import ClassifierConfig, fit_temperature, train_classifier
@@ -326,6 +332,56 @@ def test_onset_latency_needs_the_label_to_stay() -> None:
     assert onset_latency(seq[:3], "biofouling", 60.0) == math.inf
 
 
+def _published(*labels: tuple[float, str, str]) -> list[Decision]:
+    """Decisions (t, published label, window's own label), windows of 20 s, hop 1 s."""
+    return [Decision(t, lab, raw, {}, 0.9, 20.0, t - 20.0, 0.0) for t, lab, raw in labels]
+
+
+def test_events_first_fault_and_an_overall_a_fault_wins() -> None:
+    seq = _published(
+        *[(float(t), "unknown", "unknown") for t in (20, 21)],
+        *[(float(t), "nominal_15v", "nominal_15v") for t in range(22, 95)],
+        (95.0, "nominal_15v", "broken_blade_1"),
+        (96.0, "nominal_15v", "broken_blade_1"),
+        *[(float(t), "broken_blade_1", "broken_blade_1") for t in range(97, 105)],
+        *[(float(t), "nominal_15v", "nominal_15v") for t in range(105, 180)],
+    )
+    assert [(e["t"], e["label"]) for e in label_events(seq)] == [
+        (20.0, "unknown"), (22.0, "nominal_15v"), (97.0, "broken_blade_1"), (105.0, "nominal_15v"),
+    ]  # fmt: skip
+    fault = first_fault(seq)
+    assert fault == {"label": "broken_blade_1", "t": 97.0, "onset_t": 85.0}
+    # 8 s of a fault against 148 s of nominal: the fault is the answer, not averaged away.
+    assert overall_label(seq)["label"] == "broken_blade_1"
+    healthy = _published(*[(float(t), "nominal_13v", "nominal_13v") for t in range(20, 60)])
+    assert first_fault(healthy) is None
+    assert overall_label(healthy)["label"] == "nominal_13v"
+    assert overall_label([]) == {"label": UNKNOWN, "confidence": 0.0}
+
+
+def test_diagnose_expect_is_the_exit_code_for_ci(tmp_path: Path) -> None:
+    """On the committed fault bag (broken_blade_1 from 90 s) with the committed models."""
+    bag = Path(__file__).resolve().parents[2] / "bags" / "fault_broken_blade_1_at_90s.mcap"
+    models = NOMINAL_DIR.parent
+    base = ["diagnose", str(bag), "--models", str(models)]
+    js = tmp_path / "d.json"
+    assert cli.main([*base, "--expect", "broken_blade_1@90", "--json", str(js)]) == 0
+    result = json.loads(js.read_text())
+    fault = result["first_fault"]
+    assert fault["label"] == "broken_blade_1"
+    assert 90.0 <= fault["t"] - result["start"] <= 150.0
+    assert abs(fault["onset_t"] - result["start"] - 90.0) <= 20.0
+    assert result["overall"]["label"] == "broken_blade_1"
+    assert cli.main([*base, "--expect", "broken_blade_1"]) == 0
+    assert cli.main([*base, "--expect", "broken_blade_1@140"]) == 1, "published before 140 s"
+    assert cli.main([*base, "--expect", "biofouling"]) == 1
+    for bad in ("rusty", "broken_blade_1@soon"):
+        with pytest.raises(SystemExit) as exit_info:  # argparse: one line, exit 2
+            cli.main([*base, "--expect", bad])
+        assert exit_info.value.code == 2
+    assert cli.main(["diagnose", str(tmp_path / "none"), "--models", str(models)]) == 2
+
+
 # ---------------------------------------------------------------------------------------------
 # Command line
 
@@ -345,8 +401,11 @@ def test_cli_train_and_diagnose_json_has_design_keys(models: Path, tmp_path: Pat
     assert cli.main(["diagnose", str(data / "biofouling_41.csv"), "--models", str(out),
                      "--json", str(js)]) == 0  # fmt: skip
     result = json.loads(js.read_text())
-    assert set(result) == {"overall", "windows"}
+    assert set(result) == {"start", "overall", "events", "first_fault", "windows"}
     assert set(result["overall"]) == {"label", "confidence"}
+    for e in result["events"]:
+        assert set(e) == {"t", "label", "confidence"}
+    assert result["first_fault"] is None or set(result["first_fault"]) == {"label", "t", "onset_t"}
     assert result["overall"]["label"] in (*CLASS_NAMES, UNKNOWN)
     assert result["windows"]
     for w in result["windows"]:

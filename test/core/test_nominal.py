@@ -220,6 +220,15 @@ def test_weights_are_data_never_code(tmp_path: Path, model_dir: Path) -> None:
     assert not marker.exists()
 
 
+def test_weights_that_unpack_too_large_are_refused_unread(tmp_path: Path, model_dir: Path) -> None:
+    d = _copy(model_dir, tmp_path)
+    with (d / WEIGHTS_FILE).open("wb") as f:  # 72 MB of zeros, about 70 KB compressed
+        np.savez_compressed(f, **{"out.bias": np.zeros(9_000_000)})
+    _record_digests(d)
+    with pytest.raises(ValueError, match=rf"{WEIGHTS_FILE}: \d+ bytes of arrays unpacked"):
+        NominalModel.load(d)
+
+
 class _Payload:
     """Creates a file when unpickled."""
 

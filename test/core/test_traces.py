@@ -167,3 +167,45 @@ def test_scenario_follows_a_command_csv(tmp_path: Path) -> None:
     assert len(trace) == 60
     assert trace.command[-1] == pytest.approx(0.6)
     assert trace.rpm[-1] > 1000
+
+
+def test_simulated_recordings_carry_wall_clock_stamps(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    labels = np.array(["nominal_15v"] * 20 + ["broken_blade_1"] * 30, dtype=object)
+    write_trace_mcap([_trace(labels=labels)], tmp_path / "w.mcap")
+    with (tmp_path / "w.mcap").open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        stamps = [m.header.stamp.sec for _, _, _, m in reader.iter_decoded_messages()]
+        log_times = [m.log_time for _, _, m in reader.iter_messages()]
+    assert min(stamps) > 1_700_000_000, "not 1970"
+    assert min(log_times) > 1_700_000_000 * 10**9
+    (back,) = read_trace_mcap(tmp_path / "w.mcap")
+    assert back.t[0] == pytest.approx(0.0, abs=1e-9), "the origin is taken off again"
+    assert list(back.sample_labels()) == list(labels)
+
+
+def test_a_bag_folder_is_one_trace_per_thruster_across_its_files(tmp_path: Path) -> None:
+    from thruster_fdd.core.traces.files import bag_files, trace_files
+    from thruster_fdd.core.traces.recording import McapRecorder, RecordingPolicy
+
+    # A bag of two split files holding one thruster's telemetry: copy a simulated trace's
+    # messages into it as a recorder would receive them.
+    write_trace_mcap([_trace(condition="biofouling")], tmp_path / "src.mcap")
+    from mcap.reader import make_reader
+
+    rec = McapRecorder(tmp_path / "bag", RecordingPolicy(max_file_duration_s=2.0))
+    with (tmp_path / "src.mcap").open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            rec.write(channel.topic, schema.name, message.data, message.log_time)
+    rec.close()
+    assert len(bag_files(tmp_path / "bag")) >= 2
+    assert trace_files([tmp_path]) == [*bag_files(tmp_path / "bag"), tmp_path / "src.mcap"]
+    (trace,) = read_traces([tmp_path / "bag"])
+    (original,) = read_trace_mcap(tmp_path / "src.mcap")
+    assert trace.thruster_id == "t3"
+    np.testing.assert_allclose(trace.rpm, original.rpm)
+    assert len(read_traces([tmp_path])) == 2, "the loose file and the bag"
+    with pytest.raises(ValueError, match="not a bag"):
+        bag_files(tmp_path)

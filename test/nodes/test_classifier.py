@@ -90,7 +90,9 @@ def rig() -> Iterator[Rig]:
         node.create_subscription(
             DiagnosticArray,
             "/diagnostics",
-            lambda m: r.statuses.extend(s for s in m.status if s.name == f"{NS}/classifier"),
+            lambda m: r.statuses.extend(
+                s for s in m.status if s.name == "thruster_fdd: classifier cl"
+            ),
             reliable,
         )
         try:

@@ -115,7 +115,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     probe.node.create_subscription(
         DiagnosticArray,
         "/diagnostics",
-        lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == f"{NS}/esc_driver"),
+        lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == "thruster_fdd: esc it"),
         reliable,
     )
     try:

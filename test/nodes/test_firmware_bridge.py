@@ -118,7 +118,7 @@ def rig(firmware_images: dict, tmp_path_factory: pytest.TempPathFactory) -> Iter
     probe.node.create_subscription(
         DiagnosticArray,
         "/diagnostics",
-        lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == f"{NS}/esc_driver"),
+        lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == "thruster_fdd: esc fw"),
         reliable,
     )
     try:

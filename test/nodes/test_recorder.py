@@ -1,4 +1,5 @@
-"""Recorder node on a real graph: readable by two readers, bounded loss on kill -9, disk errors."""
+"""Recorder node on a real graph: a rosbag2 bag two readers agree on, with the publishers' QoS;
+bounded loss and a readable bag after kill -9; types nobody can describe; disk errors."""
 
 from __future__ import annotations
 
@@ -55,7 +56,7 @@ def graph() -> Iterator[Graph]:
         probe.node.create_subscription(
             DiagnosticArray,
             "/diagnostics",
-            lambda m: diagnostics.extend(s for s in m.status if s.name == "/recorder"),
+            lambda m: diagnostics.extend(s for s in m.status if s.name == "thruster_fdd: recorder"),
             reliable,
         )
         pub = probe.node.create_publisher(EscTelemetry, "/thruster/r0/esc/telemetry", reliable)
@@ -88,8 +89,8 @@ def test_clean_stop_gives_files_two_readers_agree_on(graph: Graph, tmp_path: Pat
     finally:
         assert not stop_children({"recorder": recorder}, timeout_s=15.0), "no clean stop"
         assert recorder.returncode == 0
-    files = sorted(tmp_path.glob("test_*.mcap"))
-    assert files
+    files = sorted((tmp_path / "test").glob("test_*.mcap"))
+    assert [f.name for f in files] == ["test_0.mcap"]
     with files[0].open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
@@ -102,9 +103,13 @@ def test_clean_stop_gives_files_two_readers_agree_on(graph: Graph, tmp_path: Pat
     assert len(seqs) >= 0.95 * sent, f"recorded {len(seqs)} of {sent}"
     assert seqs == sorted(seqs)
     assert metadata["thruster_fdd"]["vehicle"] == "sim-auv"
-    with AnyReader(files) as bag:
+    with AnyReader([tmp_path / "test"]) as bag:  # the bag folder, through its metadata.yaml
         conns = [c for c in bag.connections if c.topic == "/thruster/r0/esc/telemetry"]
         rows = [bag.deserialize(raw, c.msgtype) for c, _, raw in bag.messages(connections=conns)]
+        (qos,) = conns[0].ext.offered_qos_profiles
+        assert qos.reliability.name == "RELIABLE", "the publisher's offer"
+        assert conns[0].digest.startswith("RIHS01_")
+        assert conns[0].msgcount == len(seqs)
     assert [int(r.rpm) for r in rows] == seqs
 
 
@@ -118,7 +123,7 @@ def test_kill_9_loses_at_most_the_last_flush_period(graph: Graph, tmp_path: Path
     finally:
         if recorder.poll() is None:
             recorder.kill()
-    recovered = read_recovered(tmp_path / "test_000.mcap")
+    recovered = read_recovered(tmp_path / "test" / "test_0.mcap")
     assert not recovered.complete, "a killed recorder cannot have written the file's end"
     from rclpy.serialization import deserialize_message
     from thruster_fdd_msgs.msg import EscTelemetry
@@ -134,10 +139,24 @@ def test_kill_9_loses_at_most_the_last_flush_period(graph: Graph, tmp_path: Path
     print(f"kill -9: {len(seqs)} of {sent} readable, {lost} lost ({recovered.error})")
     # The flush period plus discovery and shutdown jitter, at RATE_HZ.
     assert lost <= RATE_HZ * (0.5 + 0.5), f"lost {lost} messages"
+    # metadata.yaml, rewritten at every flush, describes what the cut file holds (a recorder
+    # killed itself cannot write the file's end; killed `up` lets it finish: test_up.py).
+    import yaml
+
+    info = yaml.safe_load((tmp_path / "test" / "metadata.yaml").read_text())
+    bag = info["rosbag2_bagfile_information"]
+    assert bag["relative_file_paths"] == ["test_0.mcap"]
+    (topic,) = [
+        t
+        for t in bag["topics_with_message_count"]
+        if t["topic_metadata"]["name"] == "/thruster/r0/esc/telemetry"
+    ]
+    assert abs(topic["message_count"] - len(seqs)) <= RATE_HZ * 0.5
 
 
 def test_full_disk_is_reported_and_the_node_survives(graph: Graph, tmp_path: Path) -> None:
-    (tmp_path / "test_000.mcap").symlink_to("/dev/full")
+    (tmp_path / "test").mkdir()
+    (tmp_path / "test" / "test_0.mcap").symlink_to("/dev/full")
     recorder = _start_recorder(tmp_path)
     try:
         _wait_subscribed(graph)
@@ -167,3 +186,36 @@ def test_unwritable_folder_is_reported(graph: Graph, tmp_path: Path) -> None:
         assert recorder.poll() is None
     finally:
         stop_children({"recorder": recorder}, timeout_s=15.0)
+
+
+def test_types_nobody_installed_are_recorded_and_the_recorder_lives(
+    graph: Graph, tmp_path: Path
+) -> None:
+    """Without the workspace in AMENT_PREFIX_PATH no .msg file is found: standard types come
+    from rosbags' type store, ours get an empty definition; nothing stops the recorder."""
+    import os
+    import sys
+
+    from rosbags.rosbag2 import Reader
+
+    from thruster_fdd.lifetime import node_command
+
+    cmd = node_command(
+        "recorder",
+        params={"output_dir": tmp_path, "prefix": "bare", "discovery_period_s": 0.2},
+    )
+    assert cmd[0] == sys.executable
+    recorder = subprocess.Popen(cmd, env={**os.environ, "AMENT_PREFIX_PATH": ""})
+    try:
+        _wait_subscribed(graph)
+        sent = graph.publish_for(1.0)
+        graph.probe.spin(1.5)  # a /diagnostics status or two to record
+        assert recorder.poll() is None, "the recorder died"
+    finally:
+        assert not stop_children({"recorder": recorder}, timeout_s=15.0)
+    with Reader(tmp_path / "bare") as bag:
+        by_topic = {c.topic: c for c in bag.connections}
+        ours = by_topic["/thruster/r0/esc/telemetry"]
+        assert ours.msgcount >= 0.9 * sent
+        assert ours.msgdef.data == ""
+        assert "DiagnosticStatus" in by_topic["/diagnostics"].msgdef.data, "from rosbags"

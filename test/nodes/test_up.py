@@ -22,6 +22,7 @@ def _children_of(pid: int) -> list[int]:
 def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> None:
     from mcap.reader import make_reader
 
+    from thruster_fdd.core.traces.files import bag_files
     from thruster_fdd.core.traces.mcap_io import read_trace_mcap
 
     cmd = ["thruster-fdd", "up", "--thrusters", "2", "--duration", "12", "--print-period", "2"]
@@ -31,17 +32,21 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> No
         stderr=subprocess.STDOUT,
         text=True,
     )
-    time.sleep(3.0)
-    children = _children_of(proc.pid)
-    out, _ = proc.communicate(timeout=60)
-    assert proc.returncode == 0, out
     stages = sum(
         (default_models_dir() / folder / "model_card.json").is_file()
         for folder in ("nominal", "classifier")
     )
-    # An emulator, a driver and a command player per thruster; a recorder; one container for
-    # the exported model stages.
-    assert len(children) == 2 * 3 + 1 + (stages > 0)
+    # An emulator, a driver and a command player per thruster; a recorder; the health node;
+    # one container for the exported model stages.
+    expected = 2 * 3 + 2 + (stages > 0)
+    deadline = time.monotonic() + 10.0  # a loaded machine starts them in seconds
+    children = _children_of(proc.pid)
+    while len(children) < expected and time.monotonic() < deadline:
+        time.sleep(0.2)
+        children = _children_of(proc.pid)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out
+    assert len(children) == expected
     final = out.split("final:")[1]
     rows = {m[1]: float(m[2]) for m in re.finditer(r"^(t\d)\s+([\d.]+)\s", final, re.M)}
     assert set(rows) == {"t0", "t1"}
@@ -51,7 +56,8 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> No
     for pid in children:
         stat = Path(f"/proc/{pid}/stat")
         assert not stat.exists() or " Z " in stat.read_text(), f"child {pid} still running"
-    files = sorted(tmp_path.glob("up_*.mcap"))
+    (bag,) = tmp_path.glob("up_*")
+    files = bag_files(bag)
     assert files, out
     traces = {t.thruster_id: t for t in read_trace_mcap(files[0])}
     with files[0].open("rb") as f:
@@ -88,7 +94,7 @@ def test_a_live_fault_recorded_by_up_replays_to_the_same_diagnoses(tmp_path: Pat
         timeout=240,
     )  # fmt: skip
     assert live.returncode == 0, live.stdout[-3000:]
-    (bag,) = tmp_path.glob("up_*.mcap")
+    (bag,) = tmp_path.glob("up_*")  # the bag folder
     replay = subprocess.run(
         ["thruster-fdd", "replay", str(bag), "--json", str(tmp_path / "r.json")],
         capture_output=True,
@@ -98,3 +104,42 @@ def test_a_live_fault_recorded_by_up_replays_to_the_same_diagnoses(tmp_path: Pat
     print(replay.stdout)
     assert "expected (recorded)" in replay.stdout
     assert replay.returncode == 0, replay.stdout + replay.stderr[-2000:]
+
+
+def test_kill_9_of_up_still_finishes_the_bag(tmp_path: Path) -> None:
+    """The recorder gets SIGINT when `up` dies (PR_SET_PDEATHSIG) and writes the files' ends:
+    the bag opens in rosbags' reader, which needs every file complete."""
+    import os
+    import signal
+
+    from rosbags.rosbag2 import Reader
+
+    proc = subprocess.Popen(
+        ["thruster-fdd", "up", "--duration", "120", "--print-period", "30", "--record-dir",
+         str(tmp_path)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and not list(tmp_path.glob("up_*/metadata.yaml")):
+            time.sleep(0.5)
+        time.sleep(6.0)  # telemetry, residuals and health to record
+        children = _children_of(proc.pid)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        end = time.monotonic() + 20.0
+        while time.monotonic() < end and any(
+            Path(f"/proc/{pid}").exists() and " Z " not in Path(f"/proc/{pid}/stat").read_text()
+            for pid in children
+        ):
+            time.sleep(0.2)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    (bag,) = tmp_path.glob("up_*")
+    with Reader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert sum(1 for _ in reader.messages()) == reader.message_count
+    assert counts["/thruster/t0/esc/telemetry"] > 100
+    assert counts.get("/thruster_fdd/health", 0) >= 1

@@ -28,4 +28,4 @@ def test_up_runs_the_node_set_on_the_bridge_firmware(tmp_path: Path) -> None:
     emulator_log = (run_dir / "t0-emulator.log").read_text()
     assert "bridge firmware bridge_hott.hex on an emulated ATmega328P" in emulator_log
     print(emulator_log.strip().splitlines()[-1])
-    assert list(tmp_path.glob("up_*.mcap")), out.stdout
+    assert list(tmp_path.glob("up_*/up_*.mcap")), out.stdout

@@ -22,7 +22,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,13 +36,15 @@ from thruster_fdd.commands.common import (
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.traces.files import bag_files, is_bag
 from thruster_fdd.core.traces.replay_check import ReplayCheck, ThrusterBag, check_replay, load_bag
 from thruster_fdd.lifetime import child_env, node_command, stop_children
 
 NAME = "replay"
-HELP = "play an MCAP recording through the model nodes and check the diagnoses"
+HELP = "play a recording through the model nodes and check the diagnoses"
 DESCRIPTION = (
-    "Replay the telemetry of an MCAP recording through freshly started model nodes "
+    "Replay the telemetry of a recording (a rosbag2 bag folder of MCAP files, or one MCAP file) "
+    "through freshly started model nodes "
     "(nominal_model, classifier) as fast as they answer, or at --rate times real time, and "
     "check the diagnoses they publish against the diagnoses recorded in the bag or the "
     "ground-truth labels of a simulated recording. Exit 0 when all thrusters pass, 1 if not."
@@ -72,7 +74,7 @@ STAGES = (("nominal_model", "nominal"), ("classifier", "classifier"))
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd replay``."""
-    p.add_argument("bag", type=Path, metavar="BAG", help="MCAP recording")
+    p.add_argument("bag", type=Path, metavar="BAG", help="bag folder or MCAP file")
     p.add_argument(
         "--rate", type=positive_float, help="rate factor, > 0 (default: as fast as possible)"
     )
@@ -176,9 +178,10 @@ class Replayer:
             self._matched.append(sub.get_publisher_count)
 
     def _on_status(self, msg: Any) -> None:
+        from thruster_fdd.nodes.common import parse_status_name
+
         for status in msg.status:
-            namespace, _, name = status.name.rpartition("/")
-            tid = namespace.rpartition("/")[2]
+            name, tid = parse_status_name(status.name) or ("", "")
             for kv in status.values:
                 if tid in self.counters and kv.key == COUNTERS.get(name):
                     self.counters[tid][name] = int(kv.value)
@@ -315,6 +318,27 @@ def report(
     return lines, document, passed
 
 
+def merge_bags(parts: list[tuple[ThrusterBag, ...]]) -> tuple[ThrusterBag, ...]:
+    """One ``ThrusterBag`` per thruster from the files of a split recording, in file order (a
+    sample a later file repeats is kept once)."""
+    merged: dict[str, ThrusterBag] = {}
+    for bags in parts:
+        for bag in bags:
+            old = merged.get(bag.thruster_id)
+            if old is None:
+                merged[bag.thruster_id] = bag
+                continue
+            keep = [i for i, ns in enumerate(bag.stamps_ns) if ns > old.stamps_ns[-1]]
+            merged[bag.thruster_id] = replace(
+                old,
+                stamps_ns=old.stamps_ns + tuple(bag.stamps_ns[i] for i in keep),
+                raw=old.raw + tuple(bag.raw[i] for i in keep),
+                recorded=old.recorded + bag.recorded,
+                truth=old.truth or bag.truth,
+            )
+    return tuple(merged[tid] for tid in sorted(merged))
+
+
 def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> dict[str, subprocess.Popen[bytes]]:
     """The model nodes of every thruster of ``bags``, by name ``<thruster>/<node>``."""
     procs = {}
@@ -340,15 +364,20 @@ def run(args: argparse.Namespace) -> int:
     from thruster_fdd.core.artifact import default_models_dir
     from thruster_fdd.core.nominal.card import read_nominal_card
 
-    if not args.bag.is_file():
-        raise BadInputError(f"{args.bag}: no such recording")
+    if is_bag(args.bag):
+        files = bag_files(args.bag)
+    elif args.bag.is_file():
+        files = [args.bag]
+    else:
+        raise BadInputError(f"{args.bag}: no such recording (an MCAP file or a bag folder)")
     if not 0.0 <= args.min_agreement <= 1.0:
         raise BadInputError(f"--min-agreement must be within 0..1, got {args.min_agreement}")
     if args.json is not None:
         check_output(args.json, "--json")
     models = (args.models or default_models_dir()).resolve()
     check_models(models)
-    bags = load_bag(args.bag, read_nominal_card(models / "nominal").sample_time_s)
+    period_s = read_nominal_card(models / "nominal").sample_time_s
+    bags = merge_bags([load_bag(file, period_s) for file in files])
     procs = _start_nodes(bags, models)
     try:
         replayer = Replayer(bags, (models / "classifier" / CARD_FILE).is_file())

@@ -409,6 +409,11 @@ def run(args: argparse.Namespace) -> int:
             )
             commands["recorder"] = recorder
         commands |= _stage_commands([p.id for p in plans], models)
+        # One reference thruster type for the vehicle's effectiveness estimates: the first's.
+        ids = ",".join(p.id for p in plans)
+        commands["health"] = node_command(
+            "health", "/", {"thruster_ids": f"[{ids}]", "preset": plans[0].preset}
+        )
         for plan in plans:
             commands |= _commands(plan, rate, run_dir)
         for name, cmd in commands.items():
@@ -430,7 +435,7 @@ def run(args: argparse.Namespace) -> int:
         ]
         print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
         if not args.no_record:
-            print(f"recording every topic to {args.record_dir.resolve()}/{prefix}_*.mcap")
+            print(f"recording every topic to the bag {args.record_dir.resolve() / prefix}")
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period

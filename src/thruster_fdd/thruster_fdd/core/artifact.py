@@ -289,6 +289,11 @@ def check_files(model_dir: str | Path, card: ModelCard) -> None:
             )
 
 
+MAX_WEIGHTS_BYTES = 64 << 20
+"""Largest unpacked size of a weights file's arrays (the shipped models: under 100 KB); a larger
+one is refused before anything is decompressed."""
+
+
 def load_weights(model_dir: str | Path, card: ModelCard) -> dict[str, np.ndarray]:
     """The named weight arrays (float64) of an exported model, after ``check_files``.
 
@@ -296,11 +301,18 @@ def load_weights(model_dir: str | Path, card: ModelCard) -> dict[str, np.ndarray
     ------
     ModelMismatchError
         Naming the file: a listed file missing or changed, or a weights file that is not an
-        ``.npz`` of plain numeric arrays (pickled objects are refused, never loaded).
+        ``.npz`` of plain numeric arrays (pickled objects are refused, never loaded) or unpacks
+        to more than ``MAX_WEIGHTS_BYTES``.
     """
     check_files(model_dir, card)
     path = Path(model_dir) / WEIGHTS_FILE
     try:
+        with zipfile.ZipFile(path) as archive:
+            size = sum(info.file_size for info in archive.infolist())
+        if size > MAX_WEIGHTS_BYTES:
+            raise ModelMismatchError(
+                f"{path}: {size} bytes of arrays unpacked, more than {MAX_WEIGHTS_BYTES}"
+            )
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: np.array(npz[k], dtype=np.float64) for k in npz.files}
     except (OSError, ValueError, zipfile.BadZipFile, TypeError) as exc:

@@ -19,3 +19,10 @@ CLASS_NAMES: tuple[str, ...] = (
 
 UNKNOWN = "unknown"
 """Label of a window unlike every class (or not confident enough)."""
+
+
+FAULT_CLASSES: tuple[str, ...] = ("broken_blade_1", "broken_blade_2", "biofouling")
+"""The classes that are faults (the others are healthy thrusters at some supply voltage)."""
+
+if not set(FAULT_CLASSES) < set(CLASS_NAMES):
+    raise RuntimeError("FAULT_CLASSES must be classes of CLASS_NAMES")

@@ -112,3 +112,16 @@ def load_yaml(text: str, source: str) -> Any:
         line = f", line {where.line + 1}" if where is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise BadInputError(f"{source}{line}: not valid YAML ({problem})") from None
+
+
+class _PlainDumper(yaml.SafeDumper):
+    """A safe dumper that writes an object seen twice in full instead of as an alias, so what
+    it writes :func:`load_yaml` reads."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+def dump_yaml(data: Any) -> str:
+    """One YAML document of plain data, keys in insertion order, without anchors or aliases."""
+    return yaml.dump(data, Dumper=_PlainDumper, sort_keys=False)

@@ -6,6 +6,14 @@ hop, plus a ``/diagnostics`` status: OK for the nominal classes at 15 V, WARN fo
 voltage, ERROR for faults, STALE when residuals stop (then the diagnosis becomes UNKNOWN rather
 than repeating an old label). Residuals made by another nominal model than the one the classifier
 was trained with are refused (UNKNOWN, ERROR with both model ids).
+
+Setting the ``model_dir`` parameter at runtime loads a newly exported classifier without a
+restart; one that fails the checks is refused (the parameter change fails with the reason) and
+the old one keeps running. A classifier made for the nominal model whose residuals arrive now
+runs at once; one made for another nominal model is staged and takes over at the first residual
+of that model, so ``thruster-fdd reload`` changes the pair atomically: each residual is always
+diagnosed by the classifier made for its nominal model. The other parameters are read at start
+only (a change is refused).
 """
 
 from __future__ import annotations
@@ -14,7 +22,9 @@ import math
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from thruster_fdd_msgs.msg import Diagnosis, Residual
@@ -31,6 +41,7 @@ from thruster_fdd.nodes.common import (
     diagnostics_publisher,
     publish_status,
     run,
+    status_name,
 )
 from thruster_fdd.nodes.nominal_model import NominalModelNode
 
@@ -72,20 +83,22 @@ class ClassifierNode(Node):
         p = self.get_parameter
         self._id = p("thruster_id").value
         model_dir = p("model_dir").value or str(default_models_dir() / "classifier")
-        self._model = ClassifierModel.load(model_dir)
         threshold = float(p("unknown_threshold").value)
-        self._stream = DiagnosisStream(
-            self._model,
-            hop_s=float(p("hop_s").value),
-            hysteresis=int(p("hysteresis").value),
-            unknown_threshold=threshold if threshold >= 0 else None,
-        )
+        self._stream_options: dict[str, Any] = {
+            "hop_s": float(p("hop_s").value),
+            "hysteresis": int(p("hysteresis").value),
+            "unknown_threshold": threshold if threshold >= 0 else None,
+        }
+        self._activate(ClassifierModel.load(model_dir), model_dir)
+        self._staged: tuple[ClassifierModel, str] | None = None
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._stale_after_s = float(p("stale_after_s").value)
         self._last_input_s: float | None = None
         self._last: Decision | None = None
         self._mismatch = ""
         self._stale = False
         self._received = 0
+        self._source_id = ""
         self._pub = self.create_publisher(
             Diagnosis, "fdd/diagnosis", RELIABLE_10, event_callbacks=NO_PUB_EVENTS
         )
@@ -98,6 +111,44 @@ class ClassifierNode(Node):
             f"thruster {self._id}: classifier {self._model.model_id} from {model_dir} "
             f"({len(self._model.class_names)} classes, window {self._model.window_s:g} s)"
         )
+
+    def _activate(self, model: ClassifierModel, model_dir: str) -> None:
+        """Run ``model`` from now on, with a fresh window and evidence."""
+        self._model = model
+        self._model_dir = model_dir
+        self._stream = DiagnosisStream(model, **self._stream_options)
+        self._last = None
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        fixed = {name for name, _, _ in PARAMETERS} - {"model_dir"}
+        for param in params:
+            if param.name in fixed:
+                return SetParametersResult(
+                    successful=False, reason=f"{param.name} is read at start only"
+                )
+        for param in params:
+            if param.name != "model_dir":
+                continue
+            model_dir = param.value or str(default_models_dir() / "classifier")
+            try:
+                model = ClassifierModel.load(model_dir)
+            except ValueError as exc:
+                self.get_logger().error(f"refused new model, keeping {self._model.model_id}: {exc}")
+                return SetParametersResult(successful=False, reason=str(exc))
+            running = self._source_id or self._model.nominal_model_id
+            if model.nominal_model_id == running:
+                self._staged = None
+                self._activate(model, model_dir)
+                self.get_logger().info(f"loaded model {model.model_id} from {model_dir}")
+                return SetParametersResult(successful=True, reason=f"running {model.model_id}")
+            self._staged = (model, model_dir)
+            reason = (
+                f"staged {model.model_id}: runs from the first residual of nominal model "
+                f"{model.nominal_model_id} (now {running})"
+            )
+            self.get_logger().info(reason)
+            return SetParametersResult(successful=True, reason=reason)
+        return SetParametersResult(successful=True)
 
     def take_residuals_from(self, source: NominalModelNode) -> None:
         """Get residuals from ``source``, a nominal-model node in this process, not from DDS.
@@ -118,6 +169,12 @@ class ClassifierNode(Node):
         self._received += 1
         self._last_input_s = self._now_s()
         self._stale = False
+        self._source_id = msg.model_id
+        if self._staged is not None and msg.model_id == self._staged[0].nominal_model_id:
+            model, model_dir = self._staged
+            self._staged = None
+            self._activate(model, model_dir)
+            self.get_logger().info(f"now running staged model {model.model_id} from {model_dir}")
         if msg.model_id != self._model.nominal_model_id:
             self._mismatch = (
                 f"residuals from nominal model {msg.model_id}, classifier trained on "
@@ -199,13 +256,16 @@ class ClassifierNode(Node):
             self,
             self._diag_pub,
             level,
+            status_name("classifier", self._id),
             message,
-            self._model.model_id,
+            self._id,
             [
                 ("label", label),
                 ("residuals_received", str(self._received)),
                 ("model_id", self._model.model_id),
                 ("nominal_model_id", self._model.nominal_model_id),
+                ("model_dir", self._model_dir),
+                ("staged_model_id", self._staged[0].model_id if self._staged else ""),
             ],
         )
 

@@ -42,18 +42,40 @@ def diagnostics_publisher(node: Node) -> Publisher:
     )
 
 
+STATUS_PREFIX = "thruster_fdd: "
+"""Start of every status name on ``/diagnostics`` (diagnostic_updater's ``<node>: <task>`` form,
+the package standing for the node: a vehicle runs several of each node)."""
+
+
+def status_name(task: str, thruster_id: str = "") -> str:
+    """The ``/diagnostics`` status name of ``task`` (``esc``, ``nominal_model``, ``classifier``,
+    ``recorder``, ``health``) for one thruster or the vehicle: ``thruster_fdd: esc t0``."""
+    return f"{STATUS_PREFIX}{task} {thruster_id}" if thruster_id else f"{STATUS_PREFIX}{task}"
+
+
+def parse_status_name(name: str) -> tuple[str, str] | None:
+    """``(task, thruster id)`` of a status name made by ``status_name`` (id ``""`` for the
+    vehicle), or None for another name."""
+    if not name.startswith(STATUS_PREFIX):
+        return None
+    task, _, thruster_id = name.removeprefix(STATUS_PREFIX).partition(" ")
+    return task, thruster_id
+
+
 def publish_status(
     node: Node,
     publisher: Publisher,
     level: int | bytes,
+    name: str,
     message: str,
     hardware_id: str,
     values: Iterable[tuple[str, str]],
 ) -> None:
-    """Publish one ``DiagnosticStatus`` named ``<namespace>/<node name>``."""
+    """Publish one ``DiagnosticStatus`` (``name`` from ``status_name``; ``hardware_id`` stable:
+    the thruster id, or the vehicle for vehicle-wide nodes)."""
     status = DiagnosticStatus(
         level=level if isinstance(level, bytes) else bytes([level]),
-        name=f"{node.get_namespace().rstrip('/')}/{node.get_name()}",
+        name=name,
         message=message,
         hardware_id=hardware_id,
         values=[KeyValue(key=k, value=v) for k, v in values],

@@ -51,6 +51,7 @@ from thruster_fdd.nodes.common import (
     diagnostics_publisher,
     publish_status,
     run,
+    status_name,
 )
 
 # (name, default, description) of every parameter; the README's table is made from the same.
@@ -359,9 +360,10 @@ class EscDriver(Node):
             self,
             self._diag_pub,
             health.level,
+            status_name("esc", self._id),
             health.message,
-            self._port,
-            health.values,
+            self._id,
+            [("port", self._port), *health.values],
         )
 
     def shutdown(self) -> None:

@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
-from thruster_fdd.nodes.common import NO_SUB_EVENTS
+from thruster_fdd.nodes.common import NO_SUB_EVENTS, status_name
 
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 WINDOW_S = 2.0
@@ -89,7 +89,7 @@ class Monitor(Node):
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             for tid, row in self.rows.items():
-                if status.name == f"/thruster/{tid}/esc_driver":
+                if status.name == status_name("esc", tid):
                     row.health = f"{LEVELS.get(status.level[0], '?')}: {status.message}"
 
     def rate_hz(self, tid: str) -> float:

@@ -5,7 +5,7 @@ publishes ``Residual`` on ``fdd/residual`` and a status on ``/diagnostics``. A m
 or mismatched model stops the node at start with a message naming the file and what is wrong.
 Setting the ``model_dir`` parameter at runtime loads a newly exported model without a restart;
 a model that fails the checks is refused (the parameter change fails with the reason) and the
-old one keeps running.
+old one keeps running. The other parameters are read at start only (a change is refused).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from thruster_fdd.nodes.common import (
     diagnostics_publisher,
     publish_status,
     run,
+    status_name,
 )
 
 # Reliable and transient-local with a deep history: a classifier busy with a window decision
@@ -147,6 +148,12 @@ class NominalModelNode(Node):
         self._local_subscribers.append(callback)
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        fixed = {name for name, _, _ in PARAMETERS} - {"model_dir"}
+        for param in params:
+            if param.name in fixed:
+                return SetParametersResult(
+                    successful=False, reason=f"{param.name} is read at start only"
+                )
         for param in params:
             if param.name != "model_dir":
                 continue
@@ -158,6 +165,7 @@ class NominalModelNode(Node):
             self._model = model
             self._stream = ResidualStream(model, self._max_gap_periods)
             self.get_logger().info(f"loaded model {model.model_id} from {param.value}")
+            return SetParametersResult(successful=True, reason=f"running {model.model_id}")
         return SetParametersResult(successful=True)
 
     def _on_telemetry(self, msg: EscTelemetry) -> None:
@@ -196,8 +204,9 @@ class NominalModelNode(Node):
             self,
             self._diag_pub,
             level,
+            status_name("nominal_model", self._id),
             message,
-            self._model.model_id,
+            self._id,
             [
                 ("residual_rate_hz", f"{rate:.1f}"),
                 ("residuals_published", str(self._published)),

@@ -1,11 +1,15 @@
-"""Recorder node: every topic of the graph, as raw CDR, into MCAP files.
+"""Recorder node: every topic of the graph, as raw CDR, into a rosbag2 bag of MCAP files.
 
 Discovers topics periodically (new ones are picked up as they appear), subscribes with
 ``raw=True`` and the QoS its publishers offer (reliable only when every publisher is;
 transient-local, deep, when every publisher is, so the history published before the recorder
 matched — the first residuals of a run — is recorded too, as rosbag2 does), and
-hands the bytes to ``core.traces.recording.McapRecorder``. An unwritable folder or a full disk is
-reported on ``/diagnostics`` as ERROR while the node (and the rest of the graph) keeps running.
+hands the bytes to ``core.traces.recording.McapRecorder``, which writes the bag folder
+``<output_dir>/<prefix>`` with its ``metadata.yaml``; the publishers' QoS profiles and type
+hashes go into the bag (``ros2 bag play`` offers the same QoS again). A type whose definition
+nobody has is recorded with an empty definition. An unwritable folder or a full disk is reported on
+``/diagnostics`` as ERROR while the node (and the rest of the graph) keeps running. Stopped by
+Ctrl-C or by the death of the ``up`` that started it, it finishes the bag.
 """
 
 from __future__ import annotations
@@ -14,18 +18,20 @@ import importlib
 import re
 import time
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from thruster_fdd.core.traces.recording import McapRecorder, RecordingPolicy
+from thruster_fdd.core.traces.recording import BAG_METADATA, McapRecorder, RecordingPolicy
 from thruster_fdd.nodes.common import (
     declare_parameters,
     diagnostics_publisher,
     publish_status,
     run,
+    status_name,
 )
 
 _THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
@@ -33,8 +39,8 @@ _THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
 _LATCHED_DEPTH = 1000
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
-    ("output_dir", "recordings", "folder of the MCAP files (created if missing)"),
-    ("prefix", "", "file name prefix (empty: the start time, YYYYmmdd_HHMMSS)"),
+    ("output_dir", "recordings", "folder of the bag folders (created if missing)"),
+    ("prefix", "", "bag folder and file name (empty: the start time, YYYYmmdd_HHMMSS)"),
     ("include", ".*", "regex: record topics whose name matches"),
     ("exclude", ["/rosout", "/parameter_events"], "topics never recorded (exact names)"),
     ("discovery_period_s", 0.5, "how often new topics are looked for, s"),
@@ -54,6 +60,27 @@ def _software_version() -> str:
         return version("thruster_fdd")
     except PackageNotFoundError:
         return "unknown"
+
+
+def qos_profile_dict(qos: QoSProfile) -> dict[str, Any]:
+    """A publisher's QoS as rosbag2 stores it (metadata version 9: policy names, durations as
+    ``{sec, nsec}``)."""
+
+    def duration(d: Any) -> dict[str, int]:
+        sec, nsec = divmod(int(d.nanoseconds), 1_000_000_000)
+        return {"sec": sec, "nsec": nsec}
+
+    return {
+        "history": qos.history.name.lower(),
+        "depth": int(qos.depth),
+        "reliability": qos.reliability.name.lower(),
+        "durability": qos.durability.name.lower(),
+        "deadline": duration(qos.deadline),
+        "lifespan": duration(qos.lifespan),
+        "liveliness": qos.liveliness.name.lower(),
+        "liveliness_lease_duration": duration(qos.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
+    }
 
 
 def _message_class(type_name: str) -> type:
@@ -87,9 +114,12 @@ class Recorder(Node):
         }
         self._recorder: McapRecorder | None = None
         self._error = ""
+        self._error_published = True
         self._last_attempt = 0.0
         self._retry_after = 0.0
         self._subscribed: dict[str, str] = {}
+        # topic -> (type, offered QoS profiles, type hash), for every bag this node opens.
+        self._topics: dict[str, tuple[str, list[dict[str, Any]], str]] = {}
         self._thrusters: set[str] = set()
         self._received = 0
         self._dropped = 0
@@ -100,12 +130,22 @@ class Recorder(Node):
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_diagnostics)
         self._discover()
 
+    def _bag_dir(self) -> Path:
+        """``<output_dir>/<prefix>``, or with ``_2``, ``_3``... when that bag exists (a retry
+        after a write error, or a prefix used twice)."""
+        base = Path(self._output_dir) / self._prefix
+        path, n = base, 1
+        while (path / BAG_METADATA).exists():
+            n += 1
+            path = base.with_name(f"{base.name}_{n}")
+        return path
+
     def _open_recorder(self) -> None:
         self._last_attempt = time.monotonic()
         try:
-            self._recorder = McapRecorder(
-                self._output_dir, self._policy, self._metadata, prefix=self._prefix
-            )
+            self._recorder = McapRecorder(self._bag_dir(), self._policy, self._metadata)
+            for topic, (type_name, offered, type_hash) in self._topics.items():
+                self._recorder.add_topic(topic, type_name, offered, type_hash)
             self._error = ""
         except OSError as exc:
             self._recorder = None
@@ -126,6 +166,11 @@ class Recorder(Node):
                 self._subscribed[topic] = type_name
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
+            offered = [qos_profile_dict(info.qos_profile) for info in publishers]
+            type_hash = str(getattr(publishers[0], "topic_type_hash", "")) if publishers else ""
+            self._topics[topic] = (type_name, offered, type_hash)
+            if self._recorder is not None:
+                self._recorder.add_topic(topic, type_name, offered, type_hash)
             reliable = bool(publishers) and all(
                 info.qos_profile.reliability == ReliabilityPolicy.RELIABLE for info in publishers
             )
@@ -171,7 +216,8 @@ class Recorder(Node):
             return
         try:
             self._recorder.write(topic, type_name, data, time.time_ns())
-            self._error = ""
+            if self._error_published:
+                self._error = ""
         except OSError as exc:
             self._dropped += 1
             self._write_failed(exc)
@@ -179,6 +225,7 @@ class Recorder(Node):
     def _write_failed(self, exc: OSError) -> None:
         # The file is unusable (full disk, vanished folder): drop it, retry a new one later.
         self._error = f"writing to {self._output_dir} failed: {exc.strerror or exc}"
+        self._error_published = False
         self.get_logger().error(self._error, throttle_duration_sec=5.0)
         if self._recorder is not None:
             self._recorder.abandon()
@@ -197,6 +244,8 @@ class Recorder(Node):
                 self._write_failed(exc)
         if self._error:
             level, message = DiagnosticStatus.ERROR, self._error
+            # A failure stays ERROR until one status said so, even if the next file works.
+            self._error_published = True
         else:
             level, message = DiagnosticStatus.OK, f"recording {len(self._subscribed)} topics"
         files = [] if rec is None else rec.files
@@ -204,12 +253,15 @@ class Recorder(Node):
             self,
             self._diag_pub,
             level,
+            status_name("recorder"),
             message,
-            str(self._output_dir),
+            self._metadata["vehicle"],
             [
+                ("output_dir", str(self._output_dir)),
                 ("messages_per_s", f"{rate:.1f}"),
                 ("topics", str(len(self._subscribed))),
                 ("dropped", str(self._dropped)),
+                ("bag", "" if rec is None else str(rec.bag_dir)),
                 ("files", ",".join(str(f) for f in files)),
             ],
         )

@@ -307,7 +307,8 @@ def load_config(source: str | Path) -> SimConfig:
             raise BadInputError(
                 f"{source!r} is neither a preset ({', '.join(_PRESETS)}) nor an existing file"
             )
-        text = path.read_text()
+        # A binary file becomes replacement characters, which the YAML parser refuses by line.
+        text = path.read_text(encoding="utf-8", errors="replace")
         origin = str(path)
     try:
         data = load_yaml(text, origin)

@@ -19,6 +19,7 @@ from thruster_fdd.core.sim.config import SimConfig, perturb_unit
 from thruster_fdd.core.sim.plant import (
     CONDITION_SPECS,
     RAD_S_TO_RPM,
+    ConditionSpec,
     check_voltage,
     condition_spec,
     limited_duty,
@@ -74,6 +75,10 @@ class ThrusterSimulator:
         Supply voltage in V; None uses the condition's (15.0 / 13.0 / 11.8 V; faults 15.0 V).
     seed : int
         Seed of the unit draw and of the measurement noise; equal seeds give equal runs.
+    spec : ConditionSpec or None
+        Physics of the condition instead of ``condition``'s (``plant.severity_spec``: half a
+        blade, heavy fouling); ``condition`` then only names it. Its ``supply_v`` applies
+        unless ``voltage`` is given.
     """
 
     def __init__(
@@ -83,6 +88,7 @@ class ThrusterSimulator:
         *,
         voltage: float | None = None,
         seed: int = 0,
+        spec: ConditionSpec | None = None,
     ) -> None:
         if not isinstance(config, SimConfig):
             raise BadInputError(f"config must be a SimConfig, got {type(config).__name__}")
@@ -93,7 +99,8 @@ class ThrusterSimulator:
         self.unit = perturb_unit(config, self.seed)
         self._voltage = voltage
         self._condition = condition
-        self._plant = make_plant(self.unit, CONDITION_SPECS[condition], voltage)
+        self._spec = spec or CONDITION_SPECS[condition]
+        self._plant = make_plant(self.unit, self._spec, voltage)
         self.reset()
 
     @property
@@ -106,19 +113,21 @@ class ThrusterSimulator:
         """Simulator time, s."""
         return self._t
 
-    def set_condition(self, condition: str) -> None:
+    def set_condition(self, condition: str, spec: ConditionSpec | None = None) -> None:
         """Switch condition mid-run (fault injection); the dynamic state is kept.
 
-        The supply voltage follows the new condition unless one was given at construction.
+        The supply voltage follows the new condition unless one was given at construction;
+        ``spec``, when given, is its physics (as in the constructor).
         """
-        self._plant = make_plant(self.unit, condition_spec(condition), self._voltage)
+        self._spec = spec or condition_spec(condition)
+        self._plant = make_plant(self.unit, self._spec, self._voltage)
         self._condition = condition
 
     def set_voltage(self, voltage: float | None) -> None:
         """Set the supply voltage in V (None: the condition's); the dynamic state is kept."""
         check_voltage(voltage)
         self._voltage = voltage
-        self._plant = make_plant(self.unit, CONDITION_SPECS[self._condition], voltage)
+        self._plant = make_plant(self.unit, self._spec, voltage)
 
     def reset(self) -> None:
         """Return to rest at t = 0 and re-seed the measurement noise (condition is kept)."""
@@ -304,6 +313,7 @@ def simulate(
     *,
     voltage: float | None = None,
     seed: int = 0,
+    spec: ConditionSpec | None = None,
 ) -> Trace:
     """Simulate one thruster over a command history.
 
@@ -326,6 +336,8 @@ def simulate(
         Supply voltage, V; None uses the condition's.
     seed : int
         Unit and noise seed.
+    spec : ConditionSpec or None
+        Physics of the condition instead of ``condition``'s (see ``ThrusterSimulator``).
 
     Returns
     -------
@@ -343,7 +355,7 @@ def simulate(
         raise BadInputError("t and command must be finite")
     if len(t) > 1 and not np.all(np.diff(t) > 0):
         raise BadInputError("t must be strictly increasing")
-    sim = ThrusterSimulator(config, condition, voltage=voltage, seed=seed)
+    sim = ThrusterSimulator(config, condition, voltage=voltage, seed=seed, spec=spec)
     dts = np.diff(t, prepend=t[0]).tolist()
     rows = [sim._advance(c, dt) for c, dt in zip(command.tolist(), dts, strict=False)]
     out = np.array(rows, dtype=float).reshape(len(t), 7)

@@ -1,9 +1,10 @@
 """The numbers of one simulated unit in one condition, shared by the reference simulator
 (``sim.physics``) and its compiled free run (``sim.freerun``).
 
-``CONDITION_SPECS`` says how each condition changes a healthy unit; ``make_plant`` flattens a
-configuration, a condition and a supply voltage into a ``Plant``, which both integrators read by
-field name.
+``CONDITION_SPECS`` says how each condition changes a healthy unit, ``severity_spec`` a fault of
+continuous severity between and beyond them (half a blade, heavy fouling); ``make_plant``
+flattens a configuration, a condition and a supply voltage into a ``Plant``, which both
+integrators read by field name.
 """
 
 from __future__ import annotations
@@ -62,6 +63,64 @@ CONDITION_SPECS: dict[str, ConditionSpec] = {
 
 if set(CONDITION_SPECS) != set(CLASS_NAMES):
     raise RuntimeError("CONDITION_SPECS must cover exactly labels.CLASS_NAMES")
+
+
+FAULT_FAMILIES: tuple[str, ...] = ("blades", "fouling")
+"""Fault families with a continuous severity (``severity_spec``)."""
+
+MAX_SEVERITY = 2.0
+"""Largest severity of either family: two blades lost, or twice the ``biofouling`` class."""
+
+SEVERITY_SWEEP: dict[str, tuple[str, float]] = {
+    "half_blade": ("blades", 0.5),
+    "one_blade": ("blades", 1.0),
+    "one_and_half_blades": ("blades", 1.5),
+    "two_blades": ("blades", 2.0),
+    "light_fouling": ("fouling", 0.5),
+    "fouling": ("fouling", 1.0),
+    "heavy_fouling": ("fouling", 1.5),
+    "very_heavy_fouling": ("fouling", 2.0),
+}
+"""Named faults between and beyond the classes: name -> (family, severity)."""
+
+
+def severity_spec(family: str, severity: float, supply_v: float = 15.0) -> ConditionSpec:
+    """A fault of continuous severity, interpolated through the classes' specs.
+
+    Parameters
+    ----------
+    family : str
+        ``"blades"``: severity is the number of blades lost, 0..2 (0.5: half a blade), piecewise
+        linear through ``nominal_15v``, ``broken_blade_1`` and ``broken_blade_2``.
+        ``"fouling"``: severity 0..2 in units of the ``biofouling`` class (0.5 light, 1.5
+        heavy), every factor linear in it.
+    severity : float
+        0 is the healthy unit; at most ``MAX_SEVERITY``.
+    supply_v : float
+        Supply voltage of the spec, V.
+
+    Raises
+    ------
+    BadInputError
+        For another family or a severity outside [0, ``MAX_SEVERITY``].
+    """
+    if family not in FAULT_FAMILIES:
+        raise BadInputError(f"unknown fault family {family!r}; expected one of {FAULT_FAMILIES}")
+    if not (math.isfinite(severity) and 0.0 <= severity <= MAX_SEVERITY):
+        raise BadInputError(f"severity must be in [0, {MAX_SEVERITY:g}], got {severity}")
+    if family == "blades":
+        ladder = [CONDITION_SPECS[c] for c in ("nominal_15v", "broken_blade_1", "broken_blade_2")]
+        i = min(int(severity), 1)
+        lo, hi, f = ladder[i], ladder[i + 1], severity - i
+    else:
+        lo, hi, f = CONDITION_SPECS["nominal_15v"], CONDITION_SPECS["biofouling"], severity
+    return ConditionSpec(
+        supply_v,
+        k_q_factor=lo.k_q_factor + f * (hi.k_q_factor - lo.k_q_factor),
+        k_thrust_factor=lo.k_thrust_factor + f * (hi.k_thrust_factor - lo.k_thrust_factor),
+        friction_frac=lo.friction_frac + f * (hi.friction_frac - lo.friction_frac),
+        ripple=lo.ripple + f * (hi.ripple - lo.ripple),
+    )
 
 
 def condition_spec(condition: str) -> ConditionSpec:

@@ -7,6 +7,7 @@ import numpy as np
 from thruster_fdd.core.sim.config import SimConfig
 from thruster_fdd.core.sim.plant import (
     RAD_S_TO_RPM,
+    ConditionSpec,
     Plant,
     check_voltage,
     condition_spec,
@@ -63,6 +64,7 @@ def steady_state(
     *,
     condition: str = "nominal_15v",
     reported: bool = False,
+    spec: ConditionSpec | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Noise-free steady speed and bus current of the nominal unit (spread is not applied).
 
@@ -79,6 +81,8 @@ def steady_state(
     reported : bool
         Apply the measurement's reporting floor (``rpm_floor``, ``floor_zeroes_current``), as
         the telemetry would show it; noise, quantisation and outliers are never applied.
+    spec : ConditionSpec or None
+        Physics of the condition instead of ``condition``'s (``plant.severity_spec``).
 
     Returns
     -------
@@ -88,7 +92,7 @@ def steady_state(
         Steady bus current, A.
     """
     check_voltage(voltage)
-    pl = make_plant(config, condition_spec(condition), voltage)
+    pl = make_plant(config, spec or condition_spec(condition), voltage)
     u = np.clip(np.asarray(command, dtype=float), -1.0, 1.0)
     if u.ndim != 1:
         raise ValueError(f"command must be 1-D, got shape {u.shape}")
@@ -111,3 +115,53 @@ def steady_state(
         if m.floor_zeroes_current:
             ibus = np.where(below, 0.0, ibus)
     return rpm, ibus
+
+
+def steady_curves(
+    config: SimConfig, command: np.ndarray, voltage: float, specs: list[ConditionSpec]
+) -> tuple[np.ndarray, np.ndarray, list[Plant]]:
+    """``steady_state`` (noise-free, no reporting floor) of many conditions at once.
+
+    The same arithmetic, evaluated on all conditions together (each ``Plant`` field an array
+    over them): one solve instead of one per condition.
+
+    Parameters
+    ----------
+    config : SimConfig
+        Simulator configuration (spread not applied).
+    command : np.ndarray, shape (n,)
+        Normalised commands held until steady; clamped to [-1, 1].
+    voltage : float
+        Supply voltage, V (overrides the specs').
+    specs : list of ConditionSpec, length K
+        The conditions (``plant.severity_spec`` for a severity sweep).
+
+    Returns
+    -------
+    rpm : np.ndarray, shape (K, n)
+        Signed steady speed, rpm.
+    current : np.ndarray, shape (K, n)
+        Steady bus current, A.
+    plants : list of Plant, length K
+        The plant of each condition (thrust coefficients, supply resistance).
+    """
+    check_voltage(voltage)
+    plants = [make_plant(config, spec, voltage) for spec in specs]
+    # A plant whose fields are columns (K, 1): _static broadcasts them over the commands.
+    pl = Plant(
+        *(np.array([getattr(p, f) for p in plants], dtype=float)[:, None] for f in Plant._fields)
+    )
+    u = np.clip(np.asarray(command, dtype=float), -1.0, 1.0)[None, :]
+    mag = np.abs(u)
+    d = np.where(mag <= pl.width, 0.0, (mag - pl.width) / (1.0 - pl.width))
+    kq = np.where(u < 0.0, pl.k_q_rev, pl.k_q)
+    vb = np.broadcast_to(pl.v_supply, d.shape).copy()
+    for _ in range(50):
+        w, _, ibus = _static(pl, d, kq, vb)
+        vb_new = pl.v_supply - pl.r_int * ibus
+        # 1 uV: far below any voltage measurement; each pass costs a full solve.
+        converged = np.max(np.abs(vb_new - vb), initial=0.0) < 1e-6
+        vb = vb_new
+        if converged:
+            break
+    return np.sign(u) * w * RAD_S_TO_RPM, ibus, plants

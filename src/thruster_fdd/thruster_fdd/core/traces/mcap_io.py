@@ -4,7 +4,13 @@ MCAP files use schema encoding ``ros2msg`` and message encoding ``cdr``; a schem
 message definition followed by the definitions it depends on, each after a line of 80 ``=``
 and a ``MSG: pkg/Type`` line (rosbag2's layout), so the files open in rosbag2's MCAP plugin,
 Foxglove and the ``mcap`` / ``mcap-ros2-support`` readers. Definitions are read from the
-``share/<pkg>/msg/*.msg`` files of the installed packages (``AMENT_PREFIX_PATH``).
+``share/<pkg>/msg/*.msg`` files of the installed packages (``AMENT_PREFIX_PATH``), or, for a
+recorder whose environment lacks a package, from the ``rosbags`` type store of ROS 2 Jazzy's
+standard messages (``describe``).
+
+Simulated traces are written with wall-clock-like stamps (a time origin plus the trace's own
+time, the origin kept in the metadata), so tools show a real date; reading subtracts the origin
+again, so a trace comes back with the times it was written with.
 """
 
 from __future__ import annotations
@@ -12,12 +18,14 @@ from __future__ import annotations
 import os
 import re
 import struct
+import time
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 from mcap_ros2.writer import Writer
 
+from thruster_fdd.core.atomic import replaced_file
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.traces.data import Trace, check_units, finite_rows
 from thruster_fdd.core.traces.mcap_read import (
@@ -32,6 +40,10 @@ TELEMETRY_TYPE = "thruster_fdd_msgs/msg/EscTelemetry"
 
 
 METADATA_NAME = "thruster_fdd"
+
+
+ORIGIN_KEY = "time_origin_ns"
+"""Metadata key of a simulated recording's time origin: stamp = origin + trace time (ns)."""
 
 
 _SEPARATOR = "=" * 80
@@ -127,34 +139,58 @@ def message_definition(type_name: str) -> str:
     return "\n".join(parts) + "\n"
 
 
-def _label_segments(trace: Trace) -> str:
+def describe(type_name: str) -> str | None:
+    """The rosbag2-style definition of a message type, or None when nobody can describe it.
+
+    From the installed packages (``message_definition``) first, else from the ``rosbags`` type
+    store of ROS 2 Jazzy's standard messages.
+    """
+    try:
+        return message_definition(type_name)
+    except BadInputError:
+        pass
+    from rosbags.typesys import Stores, TypesysError, get_typestore
+
+    name = type_name if "/msg/" in type_name else type_name.replace("/", "/msg/", 1)
+    try:
+        text, _ = get_typestore(Stores.ROS2_JAZZY).generate_msgdef(name, ros_version=2)
+    except (KeyError, ValueError, TypesysError):
+        return None
+    return text
+
+
+def _label_segments(trace: Trace, origin_s: float) -> str:
     labels = trace.sample_labels()
     if labels is None:
         return ""
     starts = [0] + [i for i in range(1, len(labels)) if labels[i] != labels[i - 1]]
-    return ";".join(f"{trace.t[i]:.6f}:{labels[i]}" for i in starts)
+    return ";".join(f"{origin_s + trace.t[i]:.6f}:{labels[i]}" for i in starts)
 
 
-def write_trace_mcap(traces: Iterable[Trace], path: str | Path) -> None:
+def write_trace_mcap(
+    traces: Iterable[Trace], path: str | Path, *, origin_ns: int | None = None
+) -> None:
     """Write traces as ``EscTelemetry`` messages on each thruster's telemetry topic.
 
-    Labels go into a metadata record named ``thruster_fdd`` (``labels.<id>`` =
-    ``t_start:class;...``); a trace without ``thruster_id`` is written as ``t0``.
+    Stamps are ``origin_ns`` plus each sample's time (None: the wall clock now, whole seconds),
+    so a simulated recording carries a real date; the origin goes into the ``thruster_fdd``
+    metadata record (``time_origin_ns``) with the labels (``labels.<id>`` =
+    ``stamp_s:class;...``, on the stamps' clock). A trace without ``thruster_id`` is written
+    as ``t0``. The file appears whole or not at all.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as f:
+    origin = (time.time_ns() // 1_000_000_000) * 1_000_000_000 if origin_ns is None else origin_ns
+    with replaced_file(path) as tmp, tmp.open("wb") as f:
         writer = Writer(f)
         schema = writer.register_msgdef(TELEMETRY_TYPE, message_definition(TELEMETRY_TYPE))
-        metadata: dict[str, str] = {}
+        metadata: dict[str, str] = {ORIGIN_KEY: str(origin)}
         for trace in traces:
             tid = trace.thruster_id or "t0"
-            metadata[f"labels.{tid}"] = _label_segments(trace)
+            metadata[f"labels.{tid}"] = _label_segments(trace, origin * 1e-9)
             topic = telemetry_topic(tid)
             pwm = np.rint(1500 + 400 * trace.command).astype(int)
             temperature = trace.extra.get("temperature", np.zeros(len(trace)))
             for i in range(len(trace)):
-                stamp_ns = round(float(trace.t[i]) * 1e9)
+                stamp_ns = origin + round(float(trace.t[i]) * 1e9)
                 sec, nanosec = divmod(stamp_ns, 1_000_000_000)
                 message = {
                     "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": tid},
@@ -209,6 +245,10 @@ def read_trace_mcap(path: str | Path) -> list[Trace]:
     meta = contents.metadata.get(METADATA_NAME, {})
     segments = {k.removeprefix("labels."): v for k, v in meta.items() if k.startswith("labels.")}
     columns: dict[str, dict[str, list[float]]] = {}
+    try:
+        origin_ns = int(meta.get(ORIGIN_KEY, "0"))
+    except ValueError:
+        raise BadInputError(f"{path}: {ORIGIN_KEY} metadata is not an integer") from None
     problems: list[str] = []
     undecodable = 0
     for channel, messages in _telemetry_channels(contents, problems):
@@ -223,7 +263,8 @@ def read_trace_mcap(path: str | Path) -> list[Trace]:
         for data in messages:
             try:
                 msg = decode(data)
-                row = [msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9]
+                stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                row = [(stamp_ns - origin_ns) * 1e-9]
                 row += [float(getattr(msg, field)) for field in _FIELDS.values()]
             except DECODE_ERRORS:
                 undecodable += 1
@@ -236,7 +277,11 @@ def read_trace_mcap(path: str | Path) -> list[Trace]:
     columns = {tid: cols for tid, cols in columns.items() if cols["t"]}
     if not columns:
         raise BadInputError(f"{path}: no readable {TELEMETRY_TYPE} on /thruster/<id>/esc/telemetry")
-    return [_trace(path, tid, cols, segments.get(tid, "")) for tid, cols in sorted(columns.items())]
+    origin_s = origin_ns * 1e-9
+    return [
+        _trace(path, tid, cols, segments.get(tid, ""), origin_s)
+        for tid, cols in sorted(columns.items())
+    ]
 
 
 # Trace column -> EscTelemetry field.
@@ -274,7 +319,9 @@ def _telemetry_channels(
     return out
 
 
-def _trace(path: Path, tid: str, cols: dict[str, list[float]], segments: str) -> Trace:
+def _trace(
+    path: Path, tid: str, cols: dict[str, list[float]], segments: str, origin_s: float
+) -> Trace:
     """One thruster's trace from its decoded columns: non-finite samples left out, sorted by
     time, a sample recorded twice (a re-sent frame) kept once, labels attached, units checked."""
     source = f"{path} ({tid})"
@@ -283,7 +330,7 @@ def _trace(path: Path, tid: str, cols: dict[str, list[float]], segments: str) ->
     arrays = {k: v[order] for k, v in arrays.items()}
     first = np.concatenate(([True], np.diff(arrays["t"]) > 0))
     arrays = {k: v[first] for k, v in arrays.items()}
-    labels = _labels_from_segments(source, arrays["t"], segments)
+    labels = _labels_from_segments(source, arrays["t"], segments, origin_s)
     uniform = labels is not None and bool((labels == labels[0]).all())
     try:
         trace = Trace(
@@ -303,8 +350,11 @@ def _trace(path: Path, tid: str, cols: dict[str, list[float]], segments: str) ->
     return trace
 
 
-def _labels_from_segments(source: str, t: np.ndarray, text: str) -> np.ndarray | None:
-    """Per-sample class names from ``start_s:class;...`` metadata; None when there is none."""
+def _labels_from_segments(
+    source: str, t: np.ndarray, text: str, origin_s: float
+) -> np.ndarray | None:
+    """Per-sample class names from ``start_s:class;...`` metadata (starts on the stamps' clock,
+    ``origin_s`` subtracted); None when there is none."""
     if not text:
         return None
     try:
@@ -317,5 +367,6 @@ def _labels_from_segments(source: str, t: np.ndarray, text: str) -> np.ndarray |
         ) from None
     labels = np.full(len(t), segments[0][1], dtype=object)
     for start, name in segments[1:]:
-        labels[t >= start - 1e-9] = name
+        # Segment starts are on the stamps' clock, printed to the microsecond.
+        labels[t >= start - origin_s - 1e-5] = name
     return labels

@@ -1,11 +1,16 @@
-"""MCAP recording of raw CDR messages, split into files, without ROS.
+"""Recordings as rosbag2 bags of raw CDR messages in MCAP files, without ROS.
 
 The recorder node hands every message it receives (topic, type, CDR bytes, time) to a
-:class:`McapRecorder`. Files use rosbag2's MCAP layout (profile ``ros2``, schema encoding
-``ros2msg`` with the definitions of ``core.traces.mcap_io.message_definition``, message encoding
-``cdr``). The chunk in progress is closed and written through to the OS every
-``flush_period_s``, so a killed recorder leaves all but the last period readable
-(:func:`read_recovered` reads such a file).
+:class:`McapRecorder`, which writes one bag folder per run, as ``ros2 bag record -s mcap`` does:
+``metadata.yaml`` (rosbag2 format version 9: files, topics with their type, type hash, offered
+QoS profiles and message counts, custom data) and the size/duration-split files
+``<bag>_<index>.mcap`` in rosbag2's MCAP layout (profile ``ros2``, schema encoding ``ros2msg``
+with the definitions of ``core.traces.mcap_io.describe``, message encoding ``cdr``, each
+channel's ``offered_qos_profiles`` in its metadata as the MCAP ros2 profile requires). A type
+nobody can describe is recorded with an empty definition rather than stopping the recorder.
+The chunk in progress is closed and written through to the OS, and ``metadata.yaml``
+rewritten, every ``flush_period_s``, so a killed recorder leaves all but the last period
+readable (:func:`read_recovered` reads a cut file).
 """
 
 from __future__ import annotations
@@ -15,12 +20,20 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from mcap.writer import CompressionType, Writer
 
-from thruster_fdd.core.traces.mcap_io import message_definition
+from thruster_fdd.core.atomic import write_text
+from thruster_fdd.core.safe_yaml import dump_yaml
+from thruster_fdd.core.traces.mcap_io import describe
 from thruster_fdd.core.traces.mcap_read import read_mcap
+
+BAG_METADATA = "metadata.yaml"
+"""File name of a rosbag2 bag's metadata in its folder."""
+
+BAG_VERSION = 9
+"""rosbag2 metadata format version written (ROS 2 Jazzy's)."""
 
 COMPRESSIONS = {
     "zstd": CompressionType.ZSTD,
@@ -77,52 +90,87 @@ class _OpenFile:
     sequence: dict[int, int] = field(default_factory=dict)
 
 
+@dataclass
+class _FileStats:
+    """What ``metadata.yaml`` says of one file: name, span and message count."""
+
+    name: str
+    first_ns: int = 0
+    last_ns: int = 0
+    messages: int = 0
+
+
+@dataclass
+class _Topic:
+    """What ``metadata.yaml`` says of one topic."""
+
+    type_name: str
+    offered_qos: list[dict[str, Any]]
+    type_hash: str = ""
+    messages: int = 0
+
+
 class McapRecorder:
-    """Writes raw CDR messages into size/duration-split MCAP files.
+    """Writes raw CDR messages into a rosbag2 bag folder of size/duration-split MCAP files.
 
     Parameters
     ----------
-    out_dir : str or Path
-        Folder of the recording; created if missing. Files are ``<prefix>_<index>.mcap``.
+    bag_dir : str or Path
+        The bag folder, created if missing; its files are ``<folder name>_<index>.mcap``.
     policy : RecordingPolicy
         Splitting, chunking, flushing, compression.
     metadata : dict of str to str
-        Written as the ``thruster_fdd`` metadata record at the start of every file; the dict is
-        read then, so the caller may add to it while recording.
-    prefix : str
-        File name prefix (e.g. a start time stamp).
+        Written as the ``thruster_fdd`` metadata record at the start of every file and as the
+        bag's ``custom_data``; the dict is read then, so the caller may add to it while
+        recording.
     definition_for : callable
-        Message type name -> rosbag2-style definition text.
+        Message type name -> rosbag2-style definition text, or None when it cannot be described
+        (the messages are then recorded with an empty definition).
 
     Raises
     ------
+    FileExistsError
+        If ``bag_dir`` already holds a bag (``metadata.yaml``).
     OSError
         If the folder cannot be created or a file cannot be written (the caller reports it).
     """
 
     def __init__(
         self,
-        out_dir: str | Path,
+        bag_dir: str | Path,
         policy: RecordingPolicy | None = None,
         metadata: dict[str, str] | None = None,
         *,
-        prefix: str = "recording",
-        definition_for: Callable[[str], str] = message_definition,
+        definition_for: Callable[[str], str | None] = describe,
     ) -> None:
-        self.out_dir = Path(out_dir)
+        self.bag_dir = Path(bag_dir)
         self.policy = policy or RecordingPolicy()
         self.metadata = metadata if metadata is not None else {}
-        self.prefix = prefix
         self._definition_for = definition_for
-        self._definitions: dict[str, str] = {}
+        self._definitions: dict[str, str | None] = {}
         self._file: _OpenFile | None = None
         self._last_flush = time.monotonic()
+        self._topics: dict[str, _Topic] = {}
+        self._stats: list[_FileStats] = []
         self.files: list[Path] = []
         self.messages_written = 0
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        if (self.bag_dir / BAG_METADATA).exists():
+            raise FileExistsError(f"{self.bag_dir}: already holds a bag")
+        self.bag_dir.mkdir(parents=True, exist_ok=True)
+
+    def add_topic(
+        self,
+        topic: str,
+        type_name: str,
+        offered_qos: list[dict[str, Any]],
+        type_hash: str = "",
+    ) -> None:
+        """Declare a topic before its messages: its publishers' QoS profiles (rosbag2 v9 form,
+        ``qos_profile_dict``) and type hash (``RIHS01_...``) for the bag's metadata."""
+        self._topics[topic] = _Topic(type_name, offered_qos, type_hash)
 
     def _open(self, log_time_ns: int) -> _OpenFile:
-        path = self.out_dir / f"{self.prefix}_{len(self.files):03d}.mcap"
+        path = self.bag_dir / f"{self.bag_dir.name}_{len(self.files)}.mcap"
         # Writer.flush (every flush_period_s) closes the chunk and flushes this stream to the
         # OS, which bounds what a killed process can lose.
         stream = path.open("wb")
@@ -134,7 +182,23 @@ class McapRecorder:
         writer.start(profile="ros2", library="thruster_fdd")
         writer.add_metadata("thruster_fdd", self.metadata)
         self.files.append(path)
+        self._stats.append(_FileStats(path.name, log_time_ns, log_time_ns))
+        self.write_metadata()
         return _OpenFile(path, stream, writer, log_time_ns)
+
+    def _channel(self, f: _OpenFile, topic: str, type_name: str) -> int:
+        info = self._topics.setdefault(topic, _Topic(type_name, []))
+        if type_name not in f.schemas:
+            if type_name not in self._definitions:
+                self._definitions[type_name] = self._definition_for(type_name)
+            # An empty definition keeps the type's name (readers map channels by it) and the
+            # data; only decoding that one type needs its definition from elsewhere.
+            text = self._definitions[type_name] or ""
+            f.schemas[type_name] = f.writer.register_schema(type_name, "ros2msg", text.encode())
+        channel_meta = {"offered_qos_profiles": dump_yaml(info.offered_qos)}
+        if info.type_hash:
+            channel_meta["topic_type_hash"] = info.type_hash
+        return f.writer.register_channel(topic, "cdr", f.schemas[type_name], channel_meta)
 
     def write(self, topic: str, type_name: str, data: bytes, log_time_ns: int) -> None:
         """Append one message; opens, splits and flushes files as the policy says.
@@ -159,27 +223,74 @@ class McapRecorder:
             f = None
         if f is None:
             f = self._file = self._open(log_time_ns)
-        if type_name not in f.schemas:
-            if type_name not in self._definitions:
-                self._definitions[type_name] = self._definition_for(type_name)
-            f.schemas[type_name] = f.writer.register_schema(
-                type_name, "ros2msg", self._definitions[type_name].encode()
-            )
         if topic not in f.channels:
-            f.channels[topic] = f.writer.register_channel(topic, "cdr", f.schemas[type_name])
+            f.channels[topic] = self._channel(f, topic, type_name)
         channel = f.channels[topic]
         seq = f.sequence.get(channel, 0)
         f.sequence[channel] = seq + 1
         f.writer.add_message(channel, log_time_ns, data, log_time_ns, seq)
         self.messages_written += 1
+        self._topics[topic].messages += 1
+        stats = self._stats[-1]
+        stats.messages += 1
+        stats.first_ns = min(stats.first_ns, log_time_ns)
+        stats.last_ns = max(stats.last_ns, log_time_ns)
         self.flush_if_due()
 
     def flush_if_due(self) -> None:
-        """Write out the chunk in progress when ``flush_period_s`` has passed."""
+        """Write out the chunk in progress and ``metadata.yaml`` when ``flush_period_s`` has
+        passed."""
         now = time.monotonic()
         if self._file is not None and now - self._last_flush >= self.policy.flush_period_s:
             self._file.writer.flush()
+            self.write_metadata()
             self._last_flush = now
+
+    def bag_metadata(self) -> dict[str, Any]:
+        """The bag's ``metadata.yaml`` content now (rosbag2 format ``BAG_VERSION``)."""
+        used = [s for s in self._stats if s.messages]
+        start = min((s.first_ns for s in used), default=0)
+        end = max((s.last_ns for s in used), default=0)
+        return {
+            "rosbag2_bagfile_information": {
+                "version": BAG_VERSION,
+                "storage_identifier": "mcap",
+                "relative_file_paths": [s.name for s in self._stats],
+                "duration": {"nanoseconds": end - start},
+                "starting_time": {"nanoseconds_since_epoch": start},
+                "message_count": self.messages_written,
+                "topics_with_message_count": [
+                    {
+                        "topic_metadata": {
+                            "name": name,
+                            "type": t.type_name,
+                            "serialization_format": "cdr",
+                            "offered_qos_profiles": t.offered_qos,
+                            "type_description_hash": t.type_hash,
+                        },
+                        "message_count": t.messages,
+                    }
+                    for name, t in self._topics.items()
+                ],
+                "compression_format": "",
+                "compression_mode": "",
+                "files": [
+                    {
+                        "path": s.name,
+                        "starting_time": {"nanoseconds_since_epoch": s.first_ns},
+                        "duration": {"nanoseconds": s.last_ns - s.first_ns},
+                        "message_count": s.messages,
+                    }
+                    for s in self._stats
+                ],
+                "custom_data": {str(k): str(v) for k, v in self.metadata.items()},
+                "ros_distro": "jazzy",
+            }
+        }
+
+    def write_metadata(self) -> None:
+        """Rewrite ``metadata.yaml`` (atomically: a reader sees the old or the new one)."""
+        write_text(self.bag_dir / BAG_METADATA, dump_yaml(self.bag_metadata()))
 
     def bytes_written(self) -> int:
         """Bytes in all files of this recording so far."""
@@ -190,6 +301,7 @@ class McapRecorder:
         if f is not None:
             f.writer.finish()
             f.stream.close()
+            self.write_metadata()
 
     def abandon(self) -> None:
         """Drop the current file after a write error; the next message opens the next file.
@@ -200,12 +312,16 @@ class McapRecorder:
         if f is not None:
             with contextlib.suppress(OSError):
                 f.stream.close()
+        with contextlib.suppress(OSError):
+            self.write_metadata()
 
     def close(self, final_metadata: dict[str, str] | None = None) -> None:
-        """Finish the current file (with an optional last metadata record)."""
+        """Finish the current file (with an optional last metadata record) and the bag's
+        ``metadata.yaml``."""
         if self._file is not None and final_metadata:
             self._file.writer.add_metadata("thruster_fdd_final", final_metadata)
         self._close_file()
+        self.write_metadata()
 
 
 @dataclass(frozen=True)
