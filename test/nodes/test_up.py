@@ -154,3 +154,52 @@ def test_a_live_fault_recorded_by_up_replays_to_the_same_diagnoses(tmp_path: Pat
     print(replay.stdout)
     assert "expected (recorded)" in replay.stdout
     assert replay.returncode == 0, replay.stdout + replay.stderr[-2000:]
+
+
+def test_per_thruster_driver_settings_reach_the_parameters_file(tmp_path: Path) -> None:
+    import argparse
+
+    import yaml
+
+    from thruster_fdd.commands.up import node_parameters, plan_from_args, write_parameters
+    from thruster_fdd.core.errors import BadInputError
+
+    config = tmp_path / "up.yaml"
+    config.write_text(
+        "rate_hz: 50\nthrusters:\n"
+        "  - {id: t0}\n"
+        "  - {id: t1, port: /dev/ttyUSB1, protocol: kiss, baud: 57600, pole_pairs: 14,\n"
+        "     rate_hz: 100, command_rate_hz: 25, command_timeout_s: 0.3,\n"
+        "     max_command_rate_per_s: 0, bridge_timeout_ms: 250}\n"
+    )
+    args = argparse.Namespace(config=config, rate=50.0, fault=[])
+    rate, plans = plan_from_args(args)
+    params = node_parameters(plans, rate, tmp_path, tmp_path / "no-models")
+    write_parameters(params, tmp_path / "params.yaml")
+    written = yaml.safe_load((tmp_path / "params.yaml").read_text())
+    t1 = written["/thruster/t1/esc_driver"]["ros__parameters"]
+    assert t1 == {
+        "thruster_id": "t1",
+        "port": "/dev/ttyUSB1",
+        "protocol": "kiss",
+        "rate_hz": 100.0,
+        "baud": 57600,
+        "pole_pairs": 14,
+        "command_rate_hz": 25,
+        "command_timeout_s": 0.3,
+        "max_command_rate_per_s": 0,
+        "bridge_timeout_ms": 250,
+    }
+    t0 = written["/thruster/t0/esc_driver"]["ros__parameters"]
+    assert t0 == {
+        "thruster_id": "t0",
+        "port": str(tmp_path / "t0.tty"),
+        "protocol": "tfdd",
+        "rate_hz": 50.0,
+    }
+    assert "/thruster/t0/command_player" in written
+    assert "/thruster/t1/command_player" not in written
+    for bad in ("baud: -1", "baud: 9600.5", "command_timeout_s: 0", "pole_pairs: true"):
+        config.write_text(f"thrusters:\n  - {{id: t0, {bad}}}\n")
+        with pytest.raises(BadInputError, match=bad.split(":")[0]):
+            plan_from_args(args)

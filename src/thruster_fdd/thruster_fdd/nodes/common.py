@@ -16,6 +16,7 @@ from rclpy.context import Context
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -118,6 +119,10 @@ def spin(executor: Any) -> None:
     cores). A finite deadline converts correctly, so an EventsExecutor is spun in slices of
     ``SPIN_SLICE_S`` (each runs every event that arrives within it).
 
+    On Ctrl-C rclpy shuts the context down before Python sees the interrupt, so an event
+    already queued can run into the closed context (``RCLError`` from a publish): that ends the
+    spin like the shutdown itself.
+
     Raises
     ------
     ExternalShutdownException
@@ -128,7 +133,12 @@ def spin(executor: Any) -> None:
         return
     never = Future()
     while executor.context.ok():
-        executor.spin_until_future_complete(never, timeout_sec=SPIN_SLICE_S)
+        try:
+            executor.spin_until_future_complete(never, timeout_sec=SPIN_SLICE_S)
+        except _rclpy.RCLError:
+            if executor.context.ok():
+                raise
+            return
 
 
 def spin_until(
