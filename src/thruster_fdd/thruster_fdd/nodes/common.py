@@ -98,9 +98,10 @@ def make_executor(kind: str | None = None, context: Context | None = None) -> An
 
     ``events`` is rclpy's EventsExecutor (``rclpy.experimental``): the middleware calls it back
     per entity that has work, instead of the wait set that rclpy's own executors rebuild from
-    every entity of their nodes on each wake (``docs/development.md``). It supports no guard
-    conditions: a thread wakes it with ``executor.create_task``, which works with both kinds.
-    Spin it with :func:`spin`, never with its own ``spin()`` (see there).
+    every entity of their nodes on each wake (``docs/development.md``). In rclpy 7.1.6 it supports
+    no guard conditions (a thread wakes it with ``executor.create_task``, which works with both
+    kinds) and no subscription callback that takes the message info (it passes ``(msg, info)`` as
+    one argument and fails). Spin it with :func:`spin`, never with its own ``spin()`` (see there).
     """
     if (kind or executor_kind()) == "events":
         return EventsExecutor(context=context)
