@@ -222,6 +222,9 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise BadInputError("thruster ids must be unique")
+    ports = [p.port for p in plans if p.port is not None]
+    if len(set(ports)) != len(ports):
+        raise BadInputError("serial ports must be unique: one driver per port")
     for text in args.fault:
         tid, _, rest = text.partition(":")
         condition, _, at = rest.partition("@")
