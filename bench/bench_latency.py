@@ -8,7 +8,13 @@ nominal_model -> classifier up to the classifier's publish call (the target), "r
 the hop to a subscriber (this one). The same is measured at the telemetry and residual topics,
 to show where the time goes. Prints median, p95 and p99 over all messages after a warm-up.
 
-Usage (after ``. scripts/bootstrap.sh``): ``python bench/bench_latency.py --thrusters 4``
+With ``--baseline SRC`` every configuration also runs from another source tree of the package
+(e.g. ``git archive <commit>`` of the former layout, through ``PYTHONPATH``), interleaved with
+this one (A then B, ``--repeats`` times), so both see the same machine load.
+
+Usage (after ``. scripts/bootstrap.sh``)::
+
+    python bench/bench_latency.py --thrusters 1 4 8 --seconds 60 --baseline /tmp/base
 """
 
 from __future__ import annotations
@@ -18,61 +24,59 @@ import os
 import signal
 import statistics
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 import rclpy
+from rclpy.context import Context
+from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
-from thruster_fdd.nodes.common import NO_SUB_EVENTS
+from thruster_fdd.nodes.common import NO_SUB_EVENTS, make_executor, spin_until
+
+STAGES = ("telemetry", "residual", "diagnosis")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--thrusters", type=int, default=4)
-    parser.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz")
-    parser.add_argument("--seconds", type=float, default=60.0, help="measured interval, s")
-    parser.add_argument("--warmup", type=float, default=30.0, help="first window fills, s")
-    parser.add_argument(
-        "--observer-nice",
-        type=int,
-        default=0,
-        help="niceness of this listening process once up has started (the published latencies "
-        "use DDS source timestamps, so they do not depend on when the listener runs)",
-    )
-    args = parser.parse_args()
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+def run_once(
+    thrusters: int, rate: float, seconds: float, warmup: float, source: str | None
+) -> dict[str, dict[str, list[float]]]:
+    """Run one configuration; latencies in ms by what ("published", "received") and stage."""
+    env = dict(os.environ)
+    if source:
+        env["PYTHONPATH"] = f"{source}/src/thruster_fdd:{env.get('PYTHONPATH', '')}"
     up = subprocess.Popen(
-        ["thruster-fdd", "up", "--thrusters", str(args.thrusters), "--rate", str(args.rate),
-         "--no-record", "--print-period", "1000", "--signal", "multilevel",
-         "--duration", str(args.warmup + args.seconds + 5)],
+        [sys.executable, "-m", "thruster_fdd.cli", "up", "--thrusters", str(thrusters),
+         "--rate", str(rate), "--no-record", "--print-period", "1000", "--signal", "multilevel",
+         "--duration", str(warmup + seconds + 5)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        env=env,
     )  # fmt: skip
-    os.nice(args.observer_nice)
-    rclpy.init()
-    node = rclpy.create_node("bench_latency")
-    stages = ("telemetry", "residual", "diagnosis")
-    latencies_ms: dict[str, list[float]] = {stage: [] for stage in stages}
-    published_ms: dict[str, list[float]] = {stage: [] for stage in stages}
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("bench_latency", context=context)
+    out: dict[str, dict[str, list[float]]] = {
+        what: {stage: [] for stage in STAGES} for what in ("published", "received")
+    }
     start = time.monotonic()
 
-    def listener(stage: str) -> Callable[[Any, dict[str, int]], None]:
-        def on_message(msg: Any, info: dict[str, int]) -> None:
-            if time.monotonic() - start < args.warmup:
+    def listener(stage: str) -> Callable[[Any, Any], None]:
+        def on_message(msg: Any, info: Any) -> None:
+            if time.monotonic() - start < warmup:
                 return
             if stage == "diagnosis" and msg.confidence == 0.0:
                 return  # the UNKNOWN a silent classifier says on its own clock
             stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            latencies_ms[stage].append((node.get_clock().now().nanoseconds - stamp_ns) / 1e6)
-            published_ms[stage].append((info["source_timestamp"] - stamp_ns) / 1e6)
+            out["received"][stage].append((time.time_ns() - stamp_ns) / 1e6)
+            out["published"][stage].append((info["source_timestamp"] - stamp_ns) / 1e6)
 
         return on_message
 
     reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    for i in range(args.thrusters):
+    for i in range(thrusters):
         ns = f"/thruster/t{i}"
         for msg_type, topic, stage, qos in (
             (EscTelemetry, "esc/telemetry", "telemetry", qos_profile_sensor_data),
@@ -83,26 +87,63 @@ def main() -> None:
             node.create_subscription(
                 msg_type, f"{ns}/{topic}", listener(stage), qos, event_callbacks=NO_SUB_EVENTS
             )
-    while time.monotonic() - start < args.warmup + args.seconds:
-        rclpy.spin_once(node, timeout_sec=0.1)
+    # Not the EventsExecutor: rclpy 7.1.6's passes (message, info) as one argument to
+    # callbacks that take the message info (docs/development.md).
+    executor = make_executor("single", context=context)
+    executor.add_node(node)
+    spin_until(executor, lambda: False, start + warmup + seconds)
     up.send_signal(signal.SIGINT)
     up.wait(timeout=60)
+    executor.shutdown(timeout_sec=1.0)
     node.destroy_node()
-    rclpy.shutdown()
-    if not latencies_ms["diagnosis"]:
-        raise SystemExit("no diagnosis received")
-    print(
-        f"{args.thrusters} thruster(s) at {args.rate:g} Hz, load average "
-        f"{os.getloadavg()[0]:.2f}; latency from telemetry received by the ESC driver:"
+    rclpy.try_shutdown(context=context)
+    return out
+
+
+def summary(values: list[float]) -> str:
+    """Median, p95, p99 and max of ``values`` (ms) and their count."""
+    if not values:
+        return "none"
+    ordered = sorted(values)
+    p95, p99 = (ordered[min(len(ordered) - 1, int(q * len(ordered)))] for q in (0.95, 0.99))
+    return (
+        f"median {statistics.median(ordered):.2f} ms, p95 {p95:.2f} ms, p99 {p99:.2f} ms, "
+        f"max {ordered[-1]:.2f} ms ({len(ordered)})"
     )
-    for stage in stages:
-        for what, values in (("published", published_ms[stage]), ("received", latencies_ms[stage])):
-            ordered = sorted(values)
-            p = [ordered[min(len(ordered) - 1, int(q * len(ordered)))] for q in (0.95, 0.99)]
-            print(
-                f"  -> {stage:9s} {what:9s}: median {statistics.median(ordered):.2f} ms, "
-                f"p95 {p[0]:.2f} ms, p99 {p[1]:.2f} ms, max {ordered[-1]:.2f} ms ({len(ordered)})"
-            )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--thrusters", type=int, nargs="+", default=[1, 4, 8])
+    parser.add_argument("--rate", type=float, default=50.0, help="telemetry rate, Hz")
+    parser.add_argument("--seconds", type=float, default=60.0, help="measured interval, s")
+    parser.add_argument("--warmup", type=float, default=30.0, help="first window fills, s")
+    parser.add_argument(
+        "--baseline", metavar="SRC", help="source tree of the layout to compare with (A/B)"
+    )
+    parser.add_argument("--repeats", type=int, default=1, help="A/B pairs per configuration")
+    parser.add_argument(
+        "--all-stages",
+        action="store_true",
+        help="also print the telemetry and residual stages and the received latencies",
+    )
+    args = parser.parse_args()
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    for n in args.thrusters:
+        for _ in range(args.repeats):
+            runs = [("baseline", args.baseline)] if args.baseline else []
+            for label, source in [*runs, ("this", None)]:
+                load = os.getloadavg()[0]
+                out = run_once(n, args.rate, args.seconds, args.warmup, source)
+                print(
+                    f"{label:8s} {n} x {args.rate:g} Hz, load {load:.1f}: diagnosis published "
+                    f"{summary(out['published']['diagnosis'])}",
+                    flush=True,
+                )
+                if args.all_stages:
+                    for stage in STAGES:
+                        for what in ("published", "received"):
+                            print(f"    -> {stage:9s} {what:9s}: {summary(out[what][stage])}")
 
 
 if __name__ == "__main__":

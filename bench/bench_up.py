@@ -1,13 +1,23 @@
-"""Benchmark: CPU and resident memory of the whole `thruster-fdd up` set.
+"""Benchmark: CPU and resident memory of the whole `thruster-fdd up` set, by part.
 
-For each (thrusters, rate) pair, runs ``thruster-fdd up`` for ``--seconds`` (simulated
-thrusters, recorder on, model nodes when models are exported), samples every process of the
-set from /proc after a warm-up, and prints the set's CPU use (cores: CPU seconds per wall second
-over the measured interval) and total resident memory, split by process kind.
+For each (thrusters, rate) pair, runs ``thruster-fdd up`` for ``--seconds`` after a warm-up
+(simulated thrusters, recorder on, model nodes when models are exported), samples every process
+of the set from /proc, and prints CPU (cores: CPU seconds per wall second over the measured
+interval) and resident memory (RSS; PSS, which shares library pages between processes, in
+brackets) of
+
+- the vehicle set: ESC drivers, models and recorder — what runs on a vehicle;
+- the simulation harness: emulators and command players;
+- ``up`` itself (its live table).
+
+With ``--baseline SRC`` every configuration also runs from another source tree of the package
+(e.g. ``git archive <commit>`` of the former layout, run through ``PYTHONPATH``), interleaved
+with this one (A then B, ``--repeats`` times), so both see the same machine load.
 
 Usage (after ``. scripts/bootstrap.sh``)::
 
-    python bench/bench_up.py --thrusters 1 4 8 --rates 10 50 --seconds 20
+    python bench/bench_up.py --thrusters 1 4 8 --rates 50 --seconds 15 --warmup 25 \
+        --baseline /tmp/base
 """
 
 from __future__ import annotations
@@ -16,20 +26,23 @@ import argparse
 import os
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-# Process kinds by what their command line runs (the model container hosts both model stages).
-KINDS = {
-    "thruster_fdd.nodes.container": "models (container)",
-    "emulate": "emulate",
-    "thruster_fdd.nodes.esc_driver": "esc_driver",
-    "thruster_fdd.nodes.command_player": "command_player",
-    "thruster_fdd.nodes.recorder": "recorder",
-}
+# Process part by what its command line runs, first match wins: (text, part, group).
+PARTS = (
+    ("thruster_fdd.nodes.recorder", "recorder", "vehicle"),
+    ("thruster_fdd.nodes.container esc_driver", "drivers+models", "vehicle"),
+    ("thruster_fdd.nodes.container command_player", "command players", "sim"),
+    ("thruster_fdd.nodes.container", "models", "vehicle"),
+    ("thruster_fdd.nodes.esc_driver", "drivers", "vehicle"),
+    ("thruster_fdd.nodes.command_player", "command players", "sim"),
+    (" emulate ", "emulators", "sim"),
+)
 
 
 def _descendants(pid: int) -> list[int]:
@@ -48,43 +61,37 @@ def _descendants(pid: int) -> list[int]:
     return out
 
 
-def _sample(pid: int) -> tuple[float, float, str] | None:
-    """CPU seconds, RSS in MB and the process kind."""
+def _sample(pid: int) -> tuple[float, float, float, str, str] | None:
+    """CPU seconds, RSS and PSS in MB, part and group of process ``pid``."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-        rss_kb = next(
-            int(line.split()[1])
-            for line in Path(f"/proc/{pid}/status").read_text().splitlines()
-            if line.startswith("VmRSS:")
-        )
-    except (OSError, StopIteration):
+        rollup = Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines()
+    except OSError:
         return None
-    kind = next((name for key, name in KINDS.items() if key in cmdline), "up (monitor)")
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS, rss_kb / 1024, kind
+    kb = {line.split(":")[0]: int(line.split()[1]) for line in rollup[1:] if ":" in line}
+    part, group = next(((p, g) for key, p, g in PARTS if key in cmdline), ("up", "up"))
+    cpu_s = (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+    return cpu_s, kb.get("Rss", 0) / 1024, kb.get("Pss", 0) / 1024, part, group
 
 
-def run_once(thrusters: int, rate: float, seconds: float, warmup: float) -> None:
-    """Run one configuration and print its line."""
+def run_once(
+    thrusters: int, rate: float, seconds: float, warmup: float, source: str | None
+) -> dict[str, tuple[float, float, float, int]]:
+    """Run one configuration; returns cores, RSS MB, PSS MB and process count by part and by
+    group (keys ``group:<name>``)."""
     out_dir = tempfile.mkdtemp(prefix="bench_up_")
+    env = dict(os.environ)
+    if source:
+        env["PYTHONPATH"] = f"{source}/src/thruster_fdd:{env.get('PYTHONPATH', '')}"
     proc = subprocess.Popen(
-        [
-            "thruster-fdd",
-            "up",
-            "--thrusters",
-            str(thrusters),
-            "--rate",
-            str(rate),
-            "--duration",
-            str(warmup + seconds + 5),
-            "--print-period",
-            "1000",
-            "--record-dir",
-            out_dir,
-        ],
+        [sys.executable, "-m", "thruster_fdd.cli", "up", "--thrusters", str(thrusters),
+         "--rate", str(rate), "--duration", str(warmup + seconds + 5), "--print-period", "1000",
+         "--record-dir", out_dir],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
-    )
+        env=env,
+    )  # fmt: skip
     time.sleep(warmup)
     first = {p: s for p in _descendants(proc.pid) if (s := _sample(p))}
     t0 = time.monotonic()
@@ -93,15 +100,34 @@ def run_once(thrusters: int, rate: float, seconds: float, warmup: float) -> None
     wall = time.monotonic() - t0
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=60)
-    cpu: dict[str, float] = defaultdict(float)
-    rss: dict[str, float] = defaultdict(float)
-    for pid, (cpu_s, rss_mb, kind) in last.items():
-        cpu[kind] += (cpu_s - first.get(pid, (cpu_s, 0.0, kind))[0]) / wall
-        rss[kind] += rss_mb
-    detail = ", ".join(f"{k} {cpu[k]:.2f}/{rss[k]:.0f}" for k in sorted(cpu))
+    totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0.0, 0])
+    for pid, (cpu_s, rss, pss, part, group) in last.items():
+        cores = (cpu_s - first.get(pid, (cpu_s,))[0]) / wall
+        for key in (part, f"group:{group}"):
+            t = totals[key]
+            t[0] += cores
+            t[1] += rss
+            t[2] += pss
+            t[3] += 1
+    return {k: (v[0], v[1], v[2], int(v[3])) for k, v in totals.items()}
+
+
+def report(label: str, thrusters: int, rate: float, totals: dict) -> None:
+    """Print one configuration's line."""
+
+    def fmt(key: str) -> str:
+        cores, rss, pss, n = totals.get(key, (0.0, 0.0, 0.0, 0))
+        return f"{cores:.3f} cores, {rss:.0f} MB [{pss:.0f}] in {n}"
+
+    parts = ", ".join(
+        f"{k} {v[0]:.3f}/{v[1]:.0f}" for k, v in sorted(totals.items()) if ":" not in k
+    )
+    every = [v for k, v in totals.items() if k.startswith("group:")]
     print(
-        f"{thrusters} thruster(s) at {rate:g} Hz: CPU {sum(cpu.values()):.2f} cores, "
-        f"RSS {sum(rss.values()):.0f} MB in {len(last)} processes ({detail}; cores/MB)",
+        f"{label:8s} {thrusters} x {rate:g} Hz, load {os.getloadavg()[0]:.1f}: "
+        f"vehicle set {fmt('group:vehicle')}; sim harness {fmt('group:sim')}; up {fmt('group:up')}"
+        f"; all {sum(v[0] for v in every):.2f} cores, {sum(v[1] for v in every):.0f} MB "
+        f"in {sum(v[3] for v in every)} processes ({parts}; cores/MB RSS)",
         flush=True,
     )
 
@@ -109,14 +135,22 @@ def run_once(thrusters: int, rate: float, seconds: float, warmup: float) -> None
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--thrusters", type=int, nargs="+", default=[1, 4, 8])
-    parser.add_argument("--rates", type=float, nargs="+", default=[10.0, 50.0])
-    parser.add_argument("--seconds", type=float, default=20.0, help="measured interval, s")
-    parser.add_argument("--warmup", type=float, default=15.0, help="start-up not measured, s")
+    parser.add_argument("--rates", type=float, nargs="+", default=[50.0])
+    parser.add_argument("--seconds", type=float, default=15.0, help="measured interval, s")
+    parser.add_argument("--warmup", type=float, default=25.0, help="start-up not measured, s")
+    parser.add_argument(
+        "--baseline", metavar="SRC", help="source tree of the layout to compare with (A/B)"
+    )
+    parser.add_argument("--repeats", type=int, default=1, help="A/B pairs per configuration")
     args = parser.parse_args()
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     for n in args.thrusters:
         for rate in args.rates:
-            run_once(n, rate, args.seconds, args.warmup)
+            for _ in range(args.repeats):
+                if args.baseline:
+                    totals = run_once(n, rate, args.seconds, args.warmup, args.baseline)
+                    report("baseline", n, rate, totals)
+                report("this", n, rate, run_once(n, rate, args.seconds, args.warmup, None))
 
 
 if __name__ == "__main__":

@@ -3,7 +3,10 @@
 # 1. .venv with Python 3.11 and every pinned wheel of requirements.txt (skipped when unchanged);
 # 2. the two fixes the ROS wheels need (stale include paths in their CMake exports; the library
 #    path is handled by ros-wheels-bootstrapper's .pth on its own);
-# 3. colcon build of thruster_fdd_msgs and thruster_fdd (skipped when their sources are unchanged);
+# 3. colcon build of thruster_fdd_msgs and thruster_fdd (skipped when their sources are unchanged),
+#    and of the ROS launch system (launch, launch_ros, composition_interfaces: no wheels exist)
+#    from ../shared/vendor/ros2-launch-jazzy when that folder exists (copied to .vendor/ first:
+#    colcon writes beside the sources); without it the launch file's test is skipped;
 # 4. the bridge firmware's toolchain check and co-simulation runner (npm ci in firmware/);
 # 5. the environment: venv, install/setup.bash, DDS kept on this machine.
 # Every step is a no-op when already done, so a second run takes seconds.
@@ -45,6 +48,7 @@ fi
 . "$TFDD_VENV/bin/activate"
 export AMENT_PREFIX_PATH="$VIRTUAL_ENV" CMAKE_PREFIX_PATH="$VIRTUAL_ENV"
 
+TFDD_VENDOR="$TFDD_ROOT/../shared/vendor/ros2-launch-jazzy"
 shopt -s nullglob
 build_inputs=(
     "$TFDD_ROOT"/colcon.meta
@@ -53,15 +57,32 @@ build_inputs=(
     "$TFDD_ROOT"/thruster_fdd_msgs/msg/*.msg
     "$TFDD_ROOT"/src/thruster_fdd/package.xml
     "$TFDD_ROOT"/src/thruster_fdd/setup.py
+    "$TFDD_ROOT"/src/thruster_fdd/setup.cfg
+    "$TFDD_ROOT"/src/thruster_fdd/bin/*
     "$TFDD_ROOT"/src/thruster_fdd/config/*
     "$TFDD_ROOT"/src/thruster_fdd/launch/*
+    "$TFDD_VENDOR"/*/package.xml
 )
 shopt -u nullglob
 build_stamp="$TFDD_ROOT/install/.tfdd-build-$(_tfdd_hash "${build_inputs[@]}" "$req_stamp")"
 if [ ! -f "$build_stamp" ]; then
-    _tfdd_log "colcon build (about 20 s)"
+    base_paths=(thruster_fdd_msgs src)
+    if [ -d "$TFDD_VENDOR" ]; then
+        _tfdd_log "colcon build with the ROS launch system from $TFDD_VENDOR (about 1 minute)"
+        rm -rf "$TFDD_ROOT/.vendor"
+        mkdir -p "$TFDD_ROOT/.vendor"
+        cp -Rp "$TFDD_VENDOR" "$TFDD_ROOT/.vendor/"  # -p: unchanged sources are not rebuilt
+        chmod -R u+w "$TFDD_ROOT/.vendor"
+        base_paths+=(.vendor)
+    else
+        _tfdd_log "colcon build (about 20 s; no ../shared/vendor: launch files not buildable here)"
+    fi
+    # Builds before the node executables moved to lib/thruster_fdd generated a console script
+    # where colcon now links bin/thruster-fdd; colcon cannot link over a file.
+    stale="$TFDD_ROOT/install/thruster_fdd/bin/thruster-fdd"
+    if [ -f "$stale" ] && [ ! -L "$stale" ]; then rm -f "$stale"; fi
     mkdir -p "$TFDD_ROOT/log"
-    (cd "$TFDD_ROOT" && colcon build --symlink-install --base-paths thruster_fdd_msgs src \
+    (cd "$TFDD_ROOT" && colcon build --symlink-install --base-paths "${base_paths[@]}" \
         --event-handlers console_cohesion- summary+ >"$TFDD_ROOT/log/colcon-last.txt" 2>&1 \
         || { cat "$TFDD_ROOT/log/colcon-last.txt" >&2; exit 1; })
     rm -f "$TFDD_ROOT"/install/.tfdd-build-*

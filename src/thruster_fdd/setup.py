@@ -14,6 +14,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.json")),
         (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        ("bin", ["bin/thruster-fdd"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -21,9 +22,16 @@ setup(
     maintainer_email="thruster-fdd@example.org",
     description="Onboard soft-fault detection and diagnosis for AUV thrusters.",
     license="Apache-2.0",
+    # Every node an executable in lib/thruster_fdd (setup.cfg): `ros2 run thruster_fdd esc_driver`.
     entry_points={
         "console_scripts": [
-            "thruster-fdd = thruster_fdd.cli:main",
+            "esc_driver = thruster_fdd.nodes.esc_driver:main",
+            "nominal_model = thruster_fdd.nodes.nominal_model:main",
+            "classifier = thruster_fdd.nodes.classifier:main",
+            "recorder = thruster_fdd.nodes.recorder:main",
+            "command_player = thruster_fdd.nodes.command_player:main",
+            "container = thruster_fdd.nodes.container:main",
+            "health = thruster_fdd.nodes.health:main",
         ],
     },
 )

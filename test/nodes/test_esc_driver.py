@@ -1,12 +1,16 @@
-"""Emulator + ESC driver node on a real pty and a real rclpy graph, with injected link faults.
+"""Emulator + ESC driver node on a real pty and a real rclpy graph, with injected link faults,
+and the driver's lifecycle walked through its services.
 
 The emulator (a simulated t100 behind the bridge protocol) runs in a thread of the test process;
-the driver runs as its own process from its entry module, as ``thruster-fdd up`` starts it; a
-probe node here publishes commands and collects telemetry and /diagnostics.
+the driver runs as its own process from its entry module and is configured and activated
+through its lifecycle services, as ``thruster-fdd up`` does; a probe node here publishes
+commands and collects telemetry and /diagnostics.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import subprocess
 import threading
 import time
@@ -36,11 +40,13 @@ from thruster_fdd.core.bridge.emulator import (
 from thruster_fdd.core.sim.config import load_config
 from thruster_fdd.core.sim.physics import ThrusterSimulator
 from thruster_fdd.lifetime import stop_children
+from thruster_fdd.nodes.lifecycle_client import change_states, get_state
 
 pytestmark = pytest.mark.ros
 
 RATE_HZ = 50.0
 NS = "/thruster/it"
+DRIVER = f"{NS}/esc_driver"
 
 
 def _quiet_t100() -> object:
@@ -119,6 +125,8 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         reliable,
     )
     try:
+        for transition in ("configure", "activate"):
+            assert change_states(probe.node, probe.executor, [DRIVER], transition, 30.0) == {}
         assert r.spin_until(lambda: len(r.telemetry) >= 20, 20.0), "no telemetry from driver"
         yield r
     finally:
@@ -278,7 +286,7 @@ def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:
     stop_event = threading.Event()
     thread = threading.Thread(target=emulator.run, args=(stop_event,), daemon=True)
     thread.start()
-    params = {"port": link_path, "protocol": "kiss", "thruster_id": "kiss"}
+    params = {"port": link_path, "protocol": "kiss", "thruster_id": "kiss", "autostart": True}
     driver = start_node("esc_driver", "/thruster/kiss", params)
     received: list[EscTelemetry] = []
     with Probe("kiss_probe") as probe:
@@ -294,3 +302,125 @@ def test_kiss_telemetry_is_decoded(tmp_path: Path) -> None:
     assert len(received) >= 20
     assert all(m.status & EscTelemetry.NO_COMMAND_ECHO for m in received)
     assert 14.0 < received[-1].voltage_v < 16.0
+
+
+def _open_devices(pid: int) -> set[str]:
+    """What the file descriptors of process ``pid`` point at."""
+    out = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):
+            out.add(os.readlink(fd))
+    return out
+
+
+def test_lifecycle_transitions_walked_on_a_pty(tmp_path: Path) -> None:
+    """unconfigured: port closed, nothing published; a bad parameter fails configure;
+    configure: port open, link reported, nothing published; activate: telemetry flows and
+    commands are forwarded; deactivate: neutral at once (before the bridge's own watchdog),
+    commands ignored, telemetry stops; cleanup: port closed; configure + activate again;
+    shutdown: finalized, neutral."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
+
+    node_name = "/thruster/lc/esc_driver"
+    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=5)
+    emulator = BridgeEmulator(simulator, tmp_path / "lc.tty", EmulatorSettings(rate_hz=RATE_HZ))
+    device = emulator.open()
+    stop_event = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop_event,), daemon=True)
+    thread.start()
+    params = {
+        "port": tmp_path / "lc.tty",
+        "thruster_id": "lc",
+        "diagnostics_period_s": 0.5,
+        "command_timeout_s": 5.0,
+        "max_command_rate_per_s": 0.0,
+        # The bridge's own watchdog far away: only the driver's neutral frame resets it fast.
+        "bridge_timeout_ms": 10000,
+    }
+    driver = start_node("esc_driver", "/thruster/lc", params)
+    telemetry: list[EscTelemetry] = []
+    statuses: list[tuple[int, str]] = []
+    with Probe("lifecycle_probe") as probe:
+        reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        probe.node.create_subscription(
+            EscTelemetry, "/thruster/lc/esc/telemetry", telemetry.append, qos_profile_sensor_data
+        )
+        probe.node.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: statuses.extend(
+                (s.level[0], s.message) for s in m.status if s.name == "thruster_fdd: esc lc"
+            ),
+            reliable,
+        )
+        commands = probe.node.create_publisher(
+            ThrusterCommand, "/thruster/lc/esc/command", reliable
+        )
+
+        def change(transition: str) -> dict[str, str]:
+            return change_states(probe.node, probe.executor, [node_name], transition, 30.0)
+
+        def state() -> str | None:
+            return get_state(probe.node, probe.executor, node_name, 30.0)
+
+        def command_for(value: float, seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                commands.publish(ThrusterCommand(command=value))
+                probe.spin(0.05)
+
+        def port_open() -> bool:
+            return device in _open_devices(driver.pid)
+
+        try:
+            assert state() == "unconfigured"
+            probe.spin(1.0)
+            assert telemetry == []
+            assert not port_open()
+
+            parameters = AsyncParameterClient(probe.node, node_name)
+            assert parameters.wait_for_services(timeout_sec=30.0)
+            for protocol, expected in (("bogus", False), ("tfdd", True)):
+                future = parameters.set_parameters([Parameter("protocol", value=protocol)])
+                assert probe.spin_until(future.done, 10.0)
+                assert (change("configure") == {}) is expected
+            assert state() == "inactive"
+            assert probe.spin_until(port_open, 2.0), "configure did not open the port"
+            assert probe.spin_until(lambda: any("inactive" in m for _, m in statuses), 3.0)
+            assert all(level >= 1 for level, m in statuses if "inactive" in m)
+            assert telemetry == [], "an inactive driver published telemetry"
+
+            assert change("activate") == {}
+            assert probe.spin_until(lambda: len(telemetry) >= 10, 5.0)
+            command_for(0.5, 1.0)
+            assert emulator.pwm_us == 1700
+
+            assert change("deactivate") == {}
+            assert probe.spin_until(lambda: emulator.pwm_us == 1500, 0.5), "no neutral sent"
+            n_before = len(telemetry)
+            command_for(0.5, 1.0)
+            assert emulator.pwm_us == 1500, "an inactive driver forwarded a command"
+            assert len(telemetry) - n_before <= 2, "an inactive driver published telemetry"
+
+            assert change("cleanup") == {}
+            assert probe.spin_until(lambda: not port_open(), 2.0), "cleanup left the port open"
+            assert state() == "unconfigured"
+
+            for transition in ("configure", "activate"):
+                assert change(transition) == {}
+            n_before = len(telemetry)
+            assert probe.spin_until(lambda: len(telemetry) >= n_before + 10, 5.0)
+            command_for(-0.25, 0.5)
+            assert emulator.pwm_us == 1400
+            assert change("shutdown") == {}
+            assert state() == "finalized"
+            assert probe.spin_until(lambda: emulator.pwm_us == 1500, 0.5)
+            assert probe.spin_until(lambda: not port_open(), 2.0)
+        finally:
+            stop_children({"esc_driver": driver}, timeout_s=10.0)
+            stop_event.set()
+            thread.join(timeout=5)

@@ -96,6 +96,7 @@ def rig(firmware_images: dict, tmp_path_factory: pytest.TempPathFactory) -> Iter
         NS,
         {
             "thruster_id": "fw",
+            "autostart": True,
             "port": link,
             "rate_hz": 50.0,
             "diagnostics_period_s": 0.5,

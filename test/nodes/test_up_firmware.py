@@ -24,7 +24,7 @@ def test_up_runs_the_node_set_on_the_bridge_firmware(tmp_path: Path) -> None:
     assert 1100 <= int(pwm) <= 1900
     assert 14.0 < float(voltage) < 16.0
     assert "OK: telemetry" in final, final
-    run_dir = Path(re.search(r"ports and logs: (\S+)", out.stdout)[1])
+    run_dir = Path(re.search(r"ports, parameters and logs: (\S+)", out.stdout)[1])
     emulator_log = (run_dir / "t0-emulator.log").read_text()
     assert "bridge firmware bridge_hott.hex on an emulated ATmega328P" in emulator_log
     print(emulator_log.strip().splitlines()[-1])

@@ -1,10 +1,19 @@
 """``thruster-fdd up``: the project's own launcher of the whole node set.
 
-Per thruster it starts the ESC driver node under ``/thruster/<id>`` and, for a simulated thruster
-(the default), a microcontroller emulator on a pseudo-terminal (``thruster-fdd emulate``) and a
-command player; both model stages of all thrusters run in one container. It prints a live table
-until Ctrl-C or ``--duration`` and stops every child cleanly (SIGINT first: the drivers send
-neutral to their bridges).
+Processes (``process_commands``, the one place their command lines are built):
+
+- ``vehicle``: one container (``nodes/container.py``) with every thruster's ESC driver (a
+  lifecycle node), nominal model and classifier — what runs on a vehicle;
+- ``recorder``: the MCAP recorder, restarted when it exits while the rest keeps running;
+- the simulation harness, for simulated thrusters only: a microcontroller emulator per thruster
+  on a pseudo-terminal (``thruster-fdd emulate``) and one container with their command players.
+
+Every node's parameters go into one parameters file in the standard ROS form
+(``/thruster/<id>/<node>: ros__parameters:``, ``node_parameters``), which the containers load
+with ``--params-file``. ``up`` then drives the drivers' lifecycle through their services:
+configure (ports opened) and activate (commands forwarded); on Ctrl-C or ``--duration`` it
+deactivates them (neutral sent) and stops every child cleanly (SIGINT first). It prints a live
+table meanwhile.
 """
 
 from __future__ import annotations
@@ -33,10 +42,11 @@ from thruster_fdd.commands.common import (
     positive_float,
 )
 from thruster_fdd.commands.emulate import BRIDGES
+from thruster_fdd.core import atomic
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
-from thruster_fdd.core.safe_yaml import load_yaml
+from thruster_fdd.core.safe_yaml import dump_yaml, load_yaml
 from thruster_fdd.core.sim.signals import make_signal
 from thruster_fdd.lifetime import child_env, node_command, stop_children, stop_with_parent
 
@@ -44,11 +54,30 @@ NAME = "up"
 HELP = "start the node set on simulated (default) or real serial thrusters"
 DESCRIPTION = (
     "Start the node set. Simulated thrusters (the default) each get a microcontroller emulator "
-    "serving the bridge protocol on a pseudo-terminal, an ESC driver node reading it with "
-    "pyserial, and a command player; real thrusters (port: in --config) get the driver only. "
-    "A recorder writes every topic to MCAP. "
+    "serving the bridge protocol on a pseudo-terminal and a command player; real thrusters "
+    "(port: in --config) get none. One vehicle process hosts every thruster's ESC driver "
+    "(configured and activated through its lifecycle services), nominal model and classifier; "
+    "a recorder writes every topic to MCAP and is restarted if it exits. "
     "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent)."
 )
+
+DRIVER_SETTINGS = (
+    "baud",
+    "pole_pairs",
+    "rate_hz",
+    "command_rate_hz",
+    "command_timeout_s",
+    "max_command_rate_per_s",
+    "bridge_timeout_ms",
+)
+"""ThrusterPlan fields that are ``esc_driver`` parameters of the same name (README, esc_driver)."""
+
+LIFECYCLE_TIMEOUT_S = 60.0
+"""Longest wait for the drivers' lifecycle services to appear and answer, s (the vehicle
+process loads the models first)."""
+
+RECORDER_BACKOFF_S = (1.0, 60.0)
+"""Delay before the first restart of an exited recorder, and the longest (doubling), s."""
 
 
 MAX_THRUSTERS = 16
@@ -88,6 +117,11 @@ class ThrusterPlan:
     bridge : str
         What serves a simulated thruster's bridge: ``python`` (the emulator) or ``firmware``
         (the bridge firmware on an emulated ATmega328P, HoTT ESC telemetry).
+    baud, pole_pairs, rate_hz, command_rate_hz, command_timeout_s, max_command_rate_per_s,
+    bridge_timeout_ms : number or None
+        The thruster's ESC driver settings (``DRIVER_SETTINGS``, units as the driver's
+        parameters); None keeps the driver's default, and ``rate_hz`` None is ``up``'s rate
+        (also the rate of a simulated thruster's emulator).
     """
 
     id: str
@@ -100,9 +134,16 @@ class ThrusterPlan:
     fault_at_s: float | None = None
     fault_condition: str | None = None
     bridge: str = "python"
+    baud: int | None = None
+    pole_pairs: int | None = None
+    rate_hz: float | None = None
+    command_rate_hz: float | None = None
+    command_timeout_s: float | None = None
+    max_command_rate_per_s: float | None = None
+    bridge_timeout_ms: int | None = None
 
     def __post_init__(self) -> None:
-        if not self.id.isidentifier():
+        if not isinstance(self.id, str) or not self.id.isidentifier():
             raise BadInputError(f"thruster id {self.id!r} must be a ROS name token like t0")
         if self.protocol not in PROTOCOLS:
             known = ", ".join(PROTOCOLS)
@@ -131,6 +172,22 @@ class ThrusterPlan:
                 f"thruster {self.id}: fault time must be a finite number >= 0 s, got "
                 f"{self.fault_at_s}"
             )
+        for name in DRIVER_SETTINGS:
+            value = getattr(self, name)
+            integral = name in ("baud", "pole_pairs", "bridge_timeout_ms")
+            allowed = (int,) if integral else (int, float)
+            if value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, allowed):
+                kind = "an integer" if integral else "a number"
+                raise BadInputError(f"thruster {self.id}: {name} must be {kind}, got {value!r}")
+            lowest_ok = name in ("max_command_rate_per_s", "bridge_timeout_ms")
+            if not math.isfinite(value) or value < 0 or (value == 0 and not lowest_ok):
+                raise BadInputError(f"thruster {self.id}: {name} must be > 0, got {value}")
+
+    def driver_settings(self) -> dict[str, int | float]:
+        """The driver settings this plan sets (``DRIVER_SETTINGS`` that are not None)."""
+        return {n: getattr(self, n) for n in DRIVER_SETTINGS if getattr(self, n) is not None}
 
 
 @dataclass(frozen=True)
@@ -187,6 +244,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=Path,
         help="folder with nominal/ and classifier/ exported models (default: the workspace's "
         "models/); a node whose model is absent is not started",
+    )
+    p.add_argument(
+        "--executor",
+        choices=("events", "single"),
+        help="executor of every node process: events (rclpy's EventsExecutor, the default) or "
+        "single (SingleThreadedExecutor, the fallback; default: $THRUSTER_FDD_EXECUTOR)",
     )
 
 
@@ -296,6 +359,9 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise BadInputError("thruster ids must be unique")
+    ports = [p.port for p in plans if p.port is not None]
+    if len(set(ports)) != len(ports):
+        raise BadInputError("serial ports must be unique: one driver per port")
     for text in args.fault:
         tid, condition, at_s = _fault(text, set(by_id))
         by_id[tid] = ThrusterPlan(
@@ -323,50 +389,116 @@ def _check_inputs(args: argparse.Namespace, plans: tuple[ThrusterPlan, ...], mod
         check_models(models)
 
 
-def _commands(plan: ThrusterPlan, rate: float, run_dir: Path) -> dict[str, list[str]]:
-    ns = f"/thruster/{plan.id}"
-    port = plan.port or str(run_dir / f"{plan.id}.tty")
-    out: dict[str, list[str]] = {}
-    if plan.port is None:
-        emulate = [sys.executable, "-m", "thruster_fdd.cli", "emulate", "--link", port]
+def exported_stages(models: Path) -> tuple[ModelStage, ...]:
+    """The model stages whose model is exported in ``models``."""
+    return tuple(st for st in MODEL_STAGES if (models / st.folder / CARD_FILE).is_file())
+
+
+def node_parameters(
+    plans: tuple[ThrusterPlan, ...], rate: float, run_dir: Path, models: Path
+) -> dict[str, dict[str, Any]]:
+    """Every node's parameters by fully qualified node name (the parameters file's content).
+
+    Simulated thrusters' ports are pseudo-terminals in ``run_dir``.
+    """
+    params: dict[str, dict[str, Any]] = {}
+    stages = exported_stages(models)
+    for plan in plans:
+        ns = f"/thruster/{plan.id}"
+        params[f"{ns}/esc_driver"] = {
+            "thruster_id": plan.id,
+            "port": plan.port or str(run_dir / f"{plan.id}.tty"),
+            "protocol": plan.protocol,
+            "rate_hz": float(plan.rate_hz or rate),
+            **plan.driver_settings(),
+        }
+        for stage in stages:
+            params[f"{ns}/{stage.node}"] = {
+                "thruster_id": plan.id,
+                "model_dir": str(models / stage.folder),
+            }
+        if plan.port is None:
+            params[f"{ns}/command_player"] = {"signal": plan.signal, "seed": plan.seed}
+    return params
+
+
+def write_parameters(params: dict[str, dict[str, Any]], path: Path) -> None:
+    """Write ``params`` as a ROS parameters file (``node: ros__parameters: {...}``)."""
+    text = dump_yaml({node: {"ros__parameters": values} for node, values in params.items()})
+    atomic.write_text(path, text)
+
+
+def process_commands(
+    plans: tuple[ThrusterPlan, ...], rate: float, run_dir: Path, models: Path, params_file: Path
+) -> dict[str, list[str]]:
+    """The command line of every process but the recorder (``recorder_command``), by name.
+
+    ``vehicle``: one container with every thruster's driver and the exported model stages;
+    ``health``: the vehicle's health node (one reference thruster type for the effectiveness
+    estimates: the first thruster's preset). Per simulated thruster an emulator
+    ``<id>-emulator`` (the Python emulator or the bridge firmware); one ``commands`` container
+    with their command players.
+    """
+    ids = [p.id for p in plans]
+    ros_args = ["--ros-args", "--params-file", str(params_file)]
+    container = [sys.executable, "-m", "thruster_fdd.nodes.container"]
+    kinds = ["esc_driver", *(st.node for st in exported_stages(models))]
+    out = {"vehicle": [*container, *kinds, "--thrusters", *ids, *ros_args]}
+    out["health"] = node_command(
+        "health", "/", {"thruster_ids": f"[{','.join(ids)}]", "preset": plans[0].preset}
+    )
+    simulated = [p for p in plans if p.port is None]
+    for plan in simulated:
+        emulate = [sys.executable, "-m", "thruster_fdd.cli", "emulate"]
+        emulate += ["--link", str(run_dir / f"{plan.id}.tty")]
         emulate += ["--preset", plan.preset, "--condition", plan.condition]
-        emulate += ["--rate", str(rate), "--seed", str(plan.seed), "--protocol", plan.protocol]
-        emulate += ["--bridge", plan.bridge]
+        emulate += ["--rate", str(plan.rate_hz or rate), "--seed", str(plan.seed)]
+        emulate += ["--protocol", plan.protocol, "--bridge", plan.bridge]
         if plan.fault_at_s is not None and plan.fault_condition is not None:
             emulate += ["--fault-at", str(plan.fault_at_s)]
             emulate += ["--fault-condition", plan.fault_condition]
         out[f"{plan.id}-emulator"] = emulate
-        out[f"{plan.id}-commands"] = node_command(
-            "command_player", ns, {"signal": plan.signal, "seed": plan.seed}
-        )
-    out[f"{plan.id}-esc_driver"] = node_command(
-        "esc_driver",
-        ns,
-        {"thruster_id": plan.id, "port": port, "protocol": plan.protocol, "rate_hz": rate},
-    )
+    if simulated:
+        out["commands"] = [
+            *container,
+            "command_player",
+            "--thrusters",
+            *(p.id for p in simulated),
+            *ros_args,
+        ]
     return out
 
 
-def _stage_commands(ids: list[str], models: Path) -> dict[str, list[str]]:
-    """One container hosting every thruster's node of each model stage whose model is exported
-    (``nodes/container.py``: torch loaded once; residuals stay in the process)."""
-    stages = [st for st in MODEL_STAGES if (models / st.folder / CARD_FILE).is_file()]
-    if not stages:
-        return {}
-    cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", *(st.node for st in stages)]
-    cmd += ["--thrusters", *ids]
-    for st in stages:
-        cmd += ["-p", f"{st.node}:model_dir={models / st.folder}"]
-    return {"models": cmd}
+def recorder_command(record_dir: Path, prefix: str, models: Path) -> list[str]:
+    """The recorder's command line: every topic to the bag ``record_dir/<prefix>/``."""
+    model_ids = ",".join(
+        f"{stage.folder}={json.loads((models / stage.folder / CARD_FILE).read_text())['model_id']}"
+        for stage in exported_stages(models)
+    )
+    return node_command(
+        "recorder",
+        "/",
+        {"output_dir": record_dir.resolve(), "prefix": prefix, "model_ids": f"'{model_ids}'"},
+    )
+
+
+def _start(cmd: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen[bytes]:
+    # Own process group: a Ctrl-C reaches children only through stop_children, so they stop in
+    # order after the table's last print.
+    with log.open("ab") as out:
+        return subprocess.Popen(
+            cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True, env=env
+        )
 
 
 def run(args: argparse.Namespace) -> int:
     """Start the node set, print the live table, stop everything on Ctrl-C or --duration."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
     from thruster_fdd.core.artifact import default_models_dir
+    from thruster_fdd.nodes.common import EXECUTOR_ENV, executor_kind, make_executor, spin_until
+    from thruster_fdd.nodes.lifecycle_client import change_states
     from thruster_fdd.nodes.monitor import Monitor
 
     rate, plans = plan_from_args(args)
@@ -378,82 +510,93 @@ def run(args: argparse.Namespace) -> int:
     models = (args.models or default_models_dir()).resolve()
     _check_inputs(args, plans, models)
     run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
+    params_file = run_dir / "params.yaml"
+    write_parameters(node_parameters(plans, rate, run_dir, models), params_file)
+    env = child_env()
+    try:
+        env[EXECUTOR_ENV] = args.executor or executor_kind()
+    except ValueError as exc:
+        raise BadInputError(str(exc)) from None
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     stop_with_parent()
 
     children: dict[str, subprocess.Popen[bytes]] = {}
+    drivers = [f"/thruster/{p.id}/esc_driver" for p in plans]
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     monitor = Monitor([p.id for p in plans])
-    executor = SingleThreadedExecutor()
+    executor = make_executor(env[EXECUTOR_ENV])
     executor.add_node(monitor)
+    prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
+    recorder_restarts = 0
     try:
         # The recorder starts first, so it is listening when the first telemetry comes.
-        commands: dict[str, list[str]] = {}
         if not args.no_record:
-            prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
-            model_ids = ",".join(
-                f"{stage.folder}={json.loads(card.read_text())['model_id']}"
-                for stage in MODEL_STAGES
-                if (card := models / stage.folder / CARD_FILE).is_file()
+            children["recorder"] = _start(
+                recorder_command(args.record_dir, prefix, models), run_dir / "recorder.log", env
             )
-            recorder = node_command(
-                "recorder",
-                "/",
-                {
-                    "output_dir": args.record_dir.resolve(),
-                    "prefix": prefix,
-                    "model_ids": f"'{model_ids}'",
-                },
-            )
-            commands["recorder"] = recorder
-        commands |= _stage_commands([p.id for p in plans], models)
-        # One reference thruster type for the vehicle's effectiveness estimates: the first's.
-        ids = ",".join(p.id for p in plans)
-        commands["health"] = node_command(
-            "health", "/", {"thruster_ids": f"[{ids}]", "preset": plans[0].preset}
-        )
-        for plan in plans:
-            commands |= _commands(plan, rate, run_dir)
-        for name, cmd in commands.items():
-            log = (run_dir / f"{name}.log").open("wb")
-            # Own process group: a Ctrl-C reaches children only through stop_children,
-            # so they stop in order after the table's last print.
-            children[name] = subprocess.Popen(
-                cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=child_env()
-            )
+        for name, cmd in process_commands(plans, rate, run_dir, models, params_file).items():
+            children[name] = _start(cmd, run_dir / f"{name}.log", env)
         kinds = ", ".join(
             f"{p.id}: {'serial ' + p.port if p.port else 'simulated ' + p.preset}" for p in plans
         )
         print(f"thruster-fdd up: {len(plans)} thruster(s) at {rate:g} Hz ({kinds})")
-        print(f"ports and logs: {run_dir}   (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', 0)})")
-        stages = [
-            f"{st.node} ({models / st.folder})"
-            for st in MODEL_STAGES
-            if (models / st.folder / CARD_FILE).is_file()
-        ]
+        domain = os.environ.get("ROS_DOMAIN_ID", 0)
+        print(f"ports, parameters and logs: {run_dir}   (ROS_DOMAIN_ID={domain})")
+        stages = [f"{st.node} ({models / st.folder})" for st in exported_stages(models)]
         print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
         if not args.no_record:
             print(f"recording every topic to the bag {args.record_dir.resolve() / prefix}")
+        for transition in ("configure", "activate"):
+            problems = change_states(monitor, executor, drivers, transition, LIFECYCLE_TIMEOUT_S)
+            if problems:
+                for target, why in problems.items():
+                    print(f"thruster-fdd up: {target}: {why}; see {run_dir}", file=sys.stderr)
+                return EXIT_FAILED
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period
+        restart_at: float | None = None
         while not stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
+            spin_until(executor, stop.is_set, time.monotonic() + 0.05)
             now = time.monotonic()
             if args.duration is not None and now - start >= args.duration:
                 break
             if now >= next_print:
                 next_print += args.print_period
                 print(f"\n[t = {now - start:5.1f} s]\n{monitor.table()}", flush=True)
-            dead = [n for n, proc in children.items() if proc.poll() is not None]
+            recorder = children.get("recorder")
+            if recorder is not None and recorder.poll() is not None and restart_at is None:
+                recorder_restarts += 1
+                first, longest = RECORDER_BACKOFF_S
+                delay = min(longest, first * 2 ** (recorder_restarts - 1))
+                restart_at = now + delay
+                print(
+                    f"thruster-fdd up: the recorder exited (code {recorder.returncode}); "
+                    f"restart {recorder_restarts} in {delay:g} s (see {run_dir}/recorder.log)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            if restart_at is not None and now >= restart_at:
+                restart_at = None
+                restarted = f"{prefix}_r{recorder_restarts}"
+                children["recorder"] = _start(
+                    recorder_command(args.record_dir, restarted, models),
+                    run_dir / "recorder.log",
+                    env,
+                )
+                print(f"recording to the bag {args.record_dir.resolve() / restarted}", flush=True)
+            dead = [n for n, p in children.items() if n != "recorder" and p.poll() is not None]
             if dead:
                 print(f"thruster-fdd up: {', '.join(dead)} exited; see {run_dir}", file=sys.stderr)
                 return EXIT_FAILED
         print(f"\nfinal:\n{monitor.table()}")
         return EXIT_OK
     finally:
+        if children.get("vehicle") is not None and children["vehicle"].poll() is None:
+            # Neutral to every bridge before the processes stop (they send it again on exit).
+            change_states(monitor, executor, drivers, "deactivate", 5.0)
         stop_children(children, timeout_s=5.0)
         executor.shutdown()
         monitor.destroy_node()

@@ -1,19 +1,26 @@
-"""What every node of the package does the same way: parameters, status, running."""
+"""What every node of the package does the same way: parameters, status, executor, running."""
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
+import time
 from collections.abc import Callable, Iterable
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.context import Context
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 
 from thruster_fdd.lifetime import stop_with_parent
 
@@ -85,12 +92,107 @@ def publish_status(
     publisher.publish(array)
 
 
+EXECUTOR_ENV = "THRUSTER_FDD_EXECUTOR"
+"""Environment variable choosing the executor of every node process: ``events`` (default) or
+``single`` (rclpy's SingleThreadedExecutor, the fallback)."""
+EXECUTORS = ("events", "single")
+
+SPIN_SLICE_S = 0.25
+"""Longest single wait of an EventsExecutor spin, s: how late an idle process notices Ctrl-C."""
+
+
+def executor_kind() -> str:
+    """The executor named by ``THRUSTER_FDD_EXECUTOR`` (``events`` when unset).
+
+    Raises
+    ------
+    ValueError
+        If the variable names another executor.
+    """
+    kind = os.environ.get(EXECUTOR_ENV, "events") or "events"
+    if kind not in EXECUTORS:
+        raise ValueError(f"{EXECUTOR_ENV}={kind!r}: expected one of {', '.join(EXECUTORS)}")
+    return kind
+
+
+def make_executor(kind: str | None = None, context: Context | None = None) -> Any:
+    """A new executor of ``kind`` (default: ``executor_kind()``) on ``context``.
+
+    ``events`` is rclpy's EventsExecutor (``rclpy.experimental``): the middleware calls it back
+    per entity that has work, instead of the wait set that rclpy's own executors rebuild from
+    every entity of their nodes on each wake (``docs/development.md``). In rclpy 7.1.6 it supports
+    no guard conditions (a thread wakes it with ``executor.create_task``, which works with both
+    kinds) and no subscription callback that takes the message info (it passes ``(msg, info)`` as
+    one argument and fails). Spin it with :func:`spin`, never with its own ``spin()`` (see there).
+    """
+    if (kind or executor_kind()) == "events":
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
+
+
+def spin(executor: Any) -> None:
+    """Spin ``executor`` until its context shuts down (or Ctrl-C, or a callback raises).
+
+    rclpy 7.1.6's ``EventsExecutor.spin()`` waits on a condition variable until
+    ``steady_clock::time_point::max()``; the wheel's libstdc++ (built for glibc 2.28, without
+    ``pthread_cond_clockwait``) converts that deadline to the system clock, which overflows, so
+    every wait returns at once: the thread spins at full CPU holding the event queue's lock,
+    the middleware threads that queue events block on it, callbacks starve and Ctrl-C is never
+    seen (measured: a node with one timer and one subscription ran none of them at 0.2-0.6
+    cores). A finite deadline converts correctly, so an EventsExecutor is spun in slices of
+    ``SPIN_SLICE_S`` (each runs every event that arrives within it).
+
+    On Ctrl-C rclpy shuts the context down before Python sees the interrupt, so an event
+    already queued can run into the closed context (``RCLError`` from a publish): that ends the
+    spin like the shutdown itself.
+
+    Raises
+    ------
+    ExternalShutdownException
+        When the context shuts down while spinning (from the EventsExecutor).
+    """
+    if isinstance(executor, Executor):
+        executor.spin()
+        return
+    never = Future()
+    while executor.context.ok():
+        try:
+            executor.spin_until_future_complete(never, timeout_sec=SPIN_SLICE_S)
+        except _rclpy.RCLError:
+            if executor.context.ok():
+                raise
+            return
+
+
+def spin_until(
+    executor: Any, predicate: Callable[[], bool], deadline: float, step_s: float = 0.05
+) -> bool:
+    """Spin ``executor`` until ``predicate()`` holds (True) or ``time.monotonic()`` passes
+    ``deadline`` (False); ``predicate`` is checked at least every ``step_s`` s."""
+    never = Future()
+    while not predicate():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        if isinstance(executor, Executor):
+            executor.spin_once(timeout_sec=min(step_s, left))
+        else:
+            executor.spin_until_future_complete(never, timeout_sec=min(step_s, left))
+    return True
+
+
 def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
     """Run one node until Ctrl-C; exit 1 with the reason when it cannot start (ValueError).
 
-    A node with a ``shutdown()`` method gets it called before it is destroyed.
+    The executor is ``make_executor()``'s. A node with a ``shutdown()`` method gets it called
+    before it is destroyed.
     """
     stop_with_parent()
+    try:
+        kind = executor_kind()
+    except ValueError as exc:
+        print(f"{factory.__name__}: cannot start: {exc}", file=sys.stderr)
+        sys.exit(1)
     rclpy.init(args=args)
     try:
         node = factory()
@@ -98,10 +200,10 @@ def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
         print(f"{factory.__name__}: cannot start: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(1)
-    executor = SingleThreadedExecutor()
+    executor = make_executor(kind)
     executor.add_node(node)
     try:
-        executor.spin()
+        spin(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -113,7 +215,7 @@ TEARDOWN_TIMEOUT_S = 10
 """Longest teardown of a node process after Ctrl-C, s; then the process is ended."""
 
 
-def release_and_destroy(executors: Iterable[Executor], nodes: Iterable[Node]) -> None:
+def release_and_destroy(executors: Iterable[Any], nodes: Iterable[Node]) -> None:
     """Shut the ``executors`` down, then call each node's ``shutdown()`` (if any) and destroy it.
 
     For the end of a node process only. A Ctrl-C inside a callback can leave handles in use,
@@ -123,7 +225,13 @@ def release_and_destroy(executors: Iterable[Executor], nodes: Iterable[Node]) ->
     after teardown began. SIGALRM's default action needs no Python code, so it works where a
     Python signal handler or thread could never run. The nodes' ``shutdown()`` hooks (files
     closed, neutral commands sent) come before anything that can hang.
+
+    SIGINT is ignored from here on: rclpy's handler ends the spin at once, but Python's own
+    KeyboardInterrupt for the same Ctrl-C may still be pending and would land inside a hook
+    (seen: a recorder stopped in the middle of finishing its bag's metadata), as would a second
+    Ctrl-C; the alarm bounds the teardown instead.
     """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGALRM, signal.SIG_DFL)
     signal.alarm(TEARDOWN_TIMEOUT_S)
     for executor in executors:

@@ -1,16 +1,23 @@
 """Container: nodes of one or more kinds, one of each per thruster, in a single process.
 
-``thruster-fdd up`` runs both model stages (``nominal_model``, ``classifier``) of all thrusters
-in one container, so the model code and numba's compiled kernels are loaded once, not once per
-thruster and stage (about 100 MB each), and each thruster's classifier gets its residuals
-straight from its nominal model in the process (intra-process delivery, ``--no-intra-process``
-turns it off) — the ROS composition idea with plain rclpy. Every node keeps its own namespace
-``/thruster/<id>``, its parameters and its parameter services (``thruster-fdd reload`` works the
-same), and each thruster's nodes are spun by an executor thread of their own
-(``spin_in_threads``).
+``thruster-fdd up`` runs the vehicle's nodes of all thrusters in one container — the ESC drivers
+(lifecycle nodes sharing one serial reader thread), the nominal models and the classifiers — so
+the interpreter, rclpy, the model code and numba's compiled kernels are loaded once, not once per
+thruster and kind (about 60 MB for an rclpy process, 100 MB more for the models), and each
+thruster's samples go from its driver to its nominal model to its classifier by direct calls
+(intra-process delivery, ``--no-intra-process`` turns it off: the stages then subscribe over
+DDS) — the ROS composition idea with plain rclpy. Every node keeps its own namespace
+``/thruster/<id>``, its parameters and its services (``thruster-fdd reload`` and the lifecycle
+services work the same). Parameters come from ``--ros-args --params-file FILE`` (the standard
+``/thruster/<id>/<node>: ros__parameters:`` form) and ``-p [KIND:]name=value`` (which wins).
+
+The executor is ``nodes.common.make_executor()``'s: one EventsExecutor for all nodes (it does
+no work per entity on a wake), or with ``THRUSTER_FDD_EXECUTOR=single`` one SingleThreadedExecutor
+per thruster, each in its own thread (``spin_in_threads``: rclpy rebuilds the wait set from every
+entity of an executor's nodes on each wake).
 
 Usage: ``python -m thruster_fdd.nodes.container KIND [KIND ...] --thrusters t0 t1
-[-p [KIND:]name=value ...]``; a ``KIND:`` prefix gives the parameter to that kind's nodes only.
+[-p [KIND:]name=value ...] [--ros-args --params-file FILE]``.
 """
 
 from __future__ import annotations
@@ -20,13 +27,15 @@ import importlib
 import sys
 import threading
 from collections.abc import Sequence
+from typing import Any
 
 import rclpy
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.parameter import Parameter
+from rclpy.utilities import remove_ros_args
 
 from thruster_fdd.lifetime import stop_with_parent
-from thruster_fdd.nodes.common import release_and_destroy
+from thruster_fdd.nodes.common import executor_kind, make_executor, release_and_destroy, spin
 
 # Node kind -> (module, class) under thruster_fdd.nodes.
 KINDS = {
@@ -72,6 +81,7 @@ def parse_parameters(kinds: list[str], texts: list[str]) -> dict[str, list[Param
 
 def main(argv: list[str] | None = None) -> None:
     """Create one node of each ``KIND`` per thruster and spin them all until Ctrl-C."""
+    argv = sys.argv if argv is None else [sys.argv[0], *argv]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("kinds", nargs="+", choices=sorted(KINDS), metavar="KIND")
     parser.add_argument("--thrusters", nargs="+", required=True, metavar="ID")
@@ -79,53 +89,68 @@ def main(argv: list[str] | None = None) -> None:
         "--no-intra-process",
         dest="intra_process",
         action="store_false",
-        help="classifiers subscribe to fdd/residual over DDS instead of taking the residuals "
-        "of the nominal model of their thruster in this process",
+        help="each stage subscribes to the previous one's topic over DDS instead of taking "
+        "its thruster's samples by a direct call in this process",
     )
     parser.add_argument(
         "-p", dest="params", action="append", default=[], metavar="[KIND:]NAME=VALUE"
     )
-    args = parser.parse_args(argv)
+    args = parser.parse_args(remove_ros_args(argv)[1:])
     try:
         params = parse_parameters(args.kinds, args.params)
+        kind = executor_kind()
     except ValueError as exc:
         parser.error(str(exc))
     classes = {}
-    for kind in args.kinds:
-        module, cls_name = KINDS[kind]
-        classes[kind] = getattr(importlib.import_module(f"thruster_fdd.nodes.{module}"), cls_name)
+    for name in args.kinds:
+        module, cls_name = KINDS[name]
+        classes[name] = getattr(importlib.import_module(f"thruster_fdd.nodes.{module}"), cls_name)
     stop_with_parent()
-    rclpy.init()
-    executors: list[SingleThreadedExecutor] = []
+    rclpy.init(args=argv)
+    # events: one executor for everything; single: one per thruster, each in a thread.
+    executors: list[Any] = [make_executor(kind)] if kind == "events" else []
     nodes = []
     try:
         for tid in args.thrusters:
-            executor = SingleThreadedExecutor()
-            executors.append(executor)
+            if kind != "events":
+                executors.append(make_executor(kind))
             made = {}
-            for kind, node_cls in classes.items():
-                overrides = [Parameter("thruster_id", value=tid), *params[kind]]
-                made[kind] = node_cls(namespace=f"/thruster/{tid}", parameter_overrides=overrides)
-                nodes.append(made[kind])
-                executor.add_node(made[kind])
-            if args.intra_process and {"nominal_model", "classifier"} <= made.keys():
-                made["classifier"].take_residuals_from(made["nominal_model"])
-        spin_in_threads(executors, args.thrusters)
+            for name, node_cls in classes.items():
+                overrides = [Parameter("thruster_id", value=tid), *params[name]]
+                made[name] = node_cls(namespace=f"/thruster/{tid}", parameter_overrides=overrides)
+                nodes.append(made[name])
+                executors[-1].add_node(made[name])
+            if args.intra_process:
+                connect_stages(made)
+        if len(executors) == 1:
+            spin(executors[0])
+        else:
+            spin_in_threads(executors, args.thrusters)
     except ValueError as exc:
         print(f"container {' '.join(args.kinds)}: cannot start: {exc}", file=sys.stderr)
         sys.exit(1)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         release_and_destroy(executors, nodes)
         rclpy.try_shutdown()
 
 
-def spin_in_threads(executors: Sequence[Executor], names: Sequence[str]) -> None:
-    """Spin each executor in a thread of its own until Ctrl-C or shutdown.
+def connect_stages(nodes: dict[str, Any]) -> None:
+    """Wire one thruster's stages in this process by direct calls (intra-process delivery):
+    driver -> nominal model (telemetry), nominal model -> classifier (residuals)."""
+    if {"esc_driver", "nominal_model"} <= nodes.keys():
+        nodes["nominal_model"].take_telemetry_from(nodes["esc_driver"])
+    if {"nominal_model", "classifier"} <= nodes.keys():
+        nodes["classifier"].take_residuals_from(nodes["nominal_model"])
 
-    One executor per thruster because rclpy rebuilds the wait set from every entity of an
-    executor's nodes on each wake (with one executor for four thrusters, most of the
+
+def spin_in_threads(executors: Sequence[Any], names: Sequence[str]) -> None:
+    """Spin each executor in a thread of its own (``nodes.common.spin``) until Ctrl-C or
+    shutdown.
+
+    One SingleThreadedExecutor per thruster because rclpy rebuilds the wait set from every
+    entity of an executor's nodes on each wake (with one executor for four thrusters, most of the
     container's CPU: ``docs/development.md``). The caller shuts the executors down.
 
     Raises
@@ -137,9 +162,9 @@ def spin_in_threads(executors: Sequence[Executor], names: Sequence[str]) -> None
     """
     errors: list[tuple[str, BaseException]] = []
 
-    def spin(name: str, executor: Executor) -> None:
+    def run(name: str, executor: Any) -> None:
         try:
-            executor.spin()
+            spin(executor)
         except ExternalShutdownException:
             pass
         except BaseException as exc:
@@ -147,7 +172,7 @@ def spin_in_threads(executors: Sequence[Executor], names: Sequence[str]) -> None
             executor.context.try_shutdown()  # wakes every executor of the context: all end
 
     threads = [
-        threading.Thread(target=spin, args=(name, executor), name=f"spin-{name}")
+        threading.Thread(target=run, args=(name, executor), name=f"spin-{name}")
         for name, executor in zip(names, executors, strict=True)
     ]
     for thread in threads:

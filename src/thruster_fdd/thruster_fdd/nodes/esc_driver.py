@@ -1,29 +1,37 @@
-"""ESC driver node: one thruster's serial bridge <-> ROS.
+"""ESC driver node: one thruster's serial bridge <-> ROS, as a managed (lifecycle) node.
 
 Reads telemetry frames from the bridge with pyserial (tfdd protocol or KISS ESC telemetry),
 publishes ``EscTelemetry`` on ``esc/telemetry``, forwards ``ThrusterCommand`` from
 ``esc/command`` as command frames (clamped, rate-limited, neutral when commands stop), and
 reports the link on ``/diagnostics``.
 
-Serial reads happen on a reader thread that blocks on the port and wakes the executor through a
-guard condition, so the executor is never blocked by I/O; the thread re-opens a lost port.
+Lifecycle: *configure* reads the parameters (a bad one fails the transition, logged) and opens
+the port (a port that cannot be opened yet is retried every ``reconnect_period_s`` and reported
+as ERROR); *activate* publishes telemetry and forwards commands; *deactivate* sends neutral and
+stops both (the link is still read and reported); *cleanup* closes the port; *shutdown* sends
+neutral and closes. With ``autostart`` the node configures and activates itself when it starts
+spinning; otherwise a lifecycle manager drives it (``thruster-fdd up`` does).
+
+All drivers of a process share one reader thread (``core.bridge.ports``) that waits on every
+port at once, decodes, and hands the frames to the executor with ``create_task`` (the
+EventsExecutor has no guard conditions), so the executor never blocks on I/O.
 """
 
 from __future__ import annotations
 
-import contextlib
 import queue
-import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import serial
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import qos_profile_sensor_data
 from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 from thruster_fdd.core.bridge.kiss import KissDecoder, KissFrame
 from thruster_fdd.core.bridge.link import (
+    WARN,
     LinkWindow,
     assess_link,
     clamp_command,
@@ -33,6 +41,7 @@ from thruster_fdd.core.bridge.link import (
     slew,
 )
 from thruster_fdd.core.bridge.plausibility import TelemetrySample, check_telemetry, to_sample
+from thruster_fdd.core.bridge.ports import SerialLink, SerialPorts
 from thruster_fdd.core.bridge.sequence import SeqCounts, SequenceWindow
 from thruster_fdd.core.bridge.tfdd import (
     CommandFrame,
@@ -68,7 +77,59 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("bridge_timeout_ms", 500, "the bridge's own watchdog sent in every command frame, ms"),
     ("reconnect_period_s", 0.25, "time between attempts to re-open a lost port, s"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
+    ("autostart", False, "configure and activate at start, without a lifecycle manager"),
 )
+
+_PORTS: SerialPorts | None = None
+
+
+def shared_ports() -> SerialPorts:
+    """The process's one ``SerialPorts``: every driver in a process reads through it.
+
+    Reads are stamped with the system clock (ROS time without simulated time), as the nodes'
+    clocks would.
+    """
+    global _PORTS
+    if _PORTS is None:
+        _PORTS = SerialPorts(time.time_ns)
+    return _PORTS
+
+
+@dataclass(frozen=True)
+class DriverSettings:
+    """The driver's parameters, checked (see ``PARAMETERS`` for meanings and units)."""
+
+    thruster_id: str
+    port: str
+    baud: int
+    protocol: str
+    rate_hz: float
+    pole_pairs: int
+    command_rate_hz: float
+    command_timeout_s: float
+    max_command_rate_per_s: float
+    bridge_timeout_ms: int
+    reconnect_period_s: float
+    diagnostics_period_s: float
+
+    def __post_init__(self) -> None:
+        if self.protocol not in ("tfdd", "kiss"):
+            raise ValueError(f"parameter protocol must be 'tfdd' or 'kiss', got {self.protocol!r}")
+        for name in (
+            "baud",
+            "rate_hz",
+            "pole_pairs",
+            "command_rate_hz",
+            "command_timeout_s",
+            "reconnect_period_s",
+            "diagnostics_period_s",
+        ):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"parameter {name} must be positive, got {getattr(self, name)}")
+        if not 0 <= self.bridge_timeout_ms <= 65535:
+            raise ValueError(
+                f"parameter bridge_timeout_ms must be 0..65535, got {self.bridge_timeout_ms}"
+            )
 
 
 @dataclass(frozen=True)
@@ -85,56 +146,34 @@ def _mcu_time_us(frame: DecodedFrame | KissFrame) -> int | None:
     return None
 
 
-class EscDriver(Node):
+class EscDriver(LifecycleNode):
     """The ESC driver of one thruster (see module docstring)."""
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("esc_driver", **node_kwargs)
         declare_parameters(self, PARAMETERS)
-        p = self.get_parameter
-        self._id = p("thruster_id").value
-        self._port = p("port").value
-        self._baud = int(p("baud").value)
-        self._protocol = p("protocol").value
-        if self._protocol not in ("tfdd", "kiss"):
-            raise ValueError(f"parameter protocol must be 'tfdd' or 'kiss', got {self._protocol!r}")
-        self._rate_hz = float(p("rate_hz").value)
-        self._pole_pairs = int(p("pole_pairs").value)
-        self._command_timeout_s = float(p("command_timeout_s").value)
-        self._max_rate = float(p("max_command_rate_per_s").value)
-        self._bridge_timeout_ms = int(p("bridge_timeout_ms").value)
-        self._reconnect_s = float(p("reconnect_period_s").value)
-        self._diag_period_s = float(p("diagnostics_period_s").value)
-
-        self._pub = self.create_publisher(
-            EscTelemetry, "esc/telemetry", qos_profile_sensor_data, event_callbacks=NO_PUB_EVENTS
-        )
         self._diag_pub = diagnostics_publisher(self)
-        self.create_subscription(
-            ThrusterCommand,
-            "esc/command",
-            self._on_command,
-            RELIABLE_10,
-            event_callbacks=NO_SUB_EVENTS,
-        )
-
+        self._local_subscribers: list[Callable[[EscTelemetry], None]] = []
+        self._settings: DriverSettings | None = None
+        self._link: SerialLink | None = None
+        self._active = False
         self._inbox: queue.SimpleQueue[_Received] = queue.SimpleQueue()
-        self._wake = self.create_guard_condition(self._drain)
-        self._serial: serial.Serial | None = None
-        self._serial_lock = threading.Lock()
-        self._port_error = "not opened yet"
-        self._reconnects = 0
-        self._stop = threading.Event()
+        self._drain_pending = False
+        # What configure made, with how to destroy it: (destroy, entity).
+        self._entities: list[tuple[Callable[[Any], Any], Any]] = []
+        self._reset_state()
+        if self.get_parameter("autostart").value:
+            self._autostart_timer = self.create_timer(0.0, self._autostart)
 
+    def _reset_state(self) -> None:
         # Command state (executor thread only).
         self._target = 0.0
         self._applied = 0.0
         self._last_command_ns: int | None = None
-        self._last_send_ns = self.get_clock().now().nanoseconds
+        self._last_send_ns = time.time_ns()
         self._tx_seq = 0
         self._watchdog = True
-
-        # Telemetry state (executor thread only).
+        # Telemetry state (executor thread only, but the decoder statistics).
         self._sequence = SequenceWindow()
         self._kiss_seq = 0
         self._last_frame_ns: int | None = None
@@ -145,75 +184,161 @@ class EscDriver(Node):
         self._decoder_stats = DecoderStats()
         self._window_start = (dict(self._counts), DecoderStats(), SeqCounts())
 
-        self._reader = threading.Thread(target=self._read_loop, name="esc-serial", daemon=True)
-        self._reader.start()
-        self.create_timer(1.0 / float(p("command_rate_hz").value), self._send_command)
-        self.create_timer(self._diag_period_s, self._publish_diagnostics)
-        self.get_logger().info(
-            f"thruster {self._id}: {self._protocol} telemetry on {self._port} "
-            f"at {self._baud} baud, expecting {self._rate_hz:g} Hz"
-        )
+    def add_local_subscriber(self, callback: Callable[[EscTelemetry], None]) -> None:
+        """Also hand every published telemetry message to ``callback``, in this process.
 
-    # ---- serial side (reader thread) -------------------------------------------------------
+        Intra-process delivery (as ``NominalModelNode.add_local_subscriber``): a nominal model in
+        the same process gets the sample before the DDS write, without DDS and the executor.
+        """
+        self._local_subscribers.append(callback)
 
-    def _read_loop(self) -> None:
-        decoder: FrameDecoder | KissDecoder = (
-            KissDecoder(self._pole_pairs) if self._protocol == "kiss" else FrameDecoder()
-        )
-        while not self._stop.is_set():
-            port = self._serial
-            if port is None:
-                self._open_port()
-                continue
-            try:
-                data = port.read(max(1, port.in_waiting))
-            except (serial.SerialException, OSError, TypeError) as exc:
-                # TypeError: pyserial reading a port closed under it by _close_port.
-                self._close_port(f"read failed: {exc}")
-                continue
-            if not data:
-                continue
-            stamp = self.get_clock().now().nanoseconds
-            frames = decoder.feed(data)
-            self._decoder_stats = decoder.stats()
-            for frame, frame_stamp in zip(
-                frames, frame_stamps(stamp, [_mcu_time_us(f) for f in frames]), strict=True
-            ):
-                self._inbox.put(_Received(frame, frame_stamp))
-            if frames:
-                self._wake.trigger()
+    # ---- lifecycle -------------------------------------------------------------------------
 
-    def _open_port(self) -> None:
+    def _autostart(self) -> None:
+        self.destroy_timer(self._autostart_timer)
+        if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
+            self.trigger_activate()
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        p = self.get_parameter
         try:
-            port = serial.Serial(self._port, self._baud, timeout=0.1, write_timeout=0)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            self._port_error = f"{self._port}: {exc}"
-            self._stop.wait(self._reconnect_s)
-            return
-        with self._serial_lock:
-            self._serial = port
-        if self._port_error != "not opened yet":
-            self._reconnects += 1
-            self.get_logger().info(f"re-opened {self._port}")
-        self._port_error = ""
+            settings = DriverSettings(
+                thruster_id=str(p("thruster_id").value),
+                port=str(p("port").value),
+                baud=int(p("baud").value),
+                protocol=str(p("protocol").value),
+                rate_hz=float(p("rate_hz").value),
+                pole_pairs=int(p("pole_pairs").value),
+                command_rate_hz=float(p("command_rate_hz").value),
+                command_timeout_s=float(p("command_timeout_s").value),
+                max_command_rate_per_s=float(p("max_command_rate_per_s").value),
+                bridge_timeout_ms=int(p("bridge_timeout_ms").value),
+                reconnect_period_s=float(p("reconnect_period_s").value),
+                diagnostics_period_s=float(p("diagnostics_period_s").value),
+            )
+        except ValueError as exc:
+            self.get_logger().error(f"cannot configure: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        self._settings = settings
+        self._reset_state()
+        self._pub = self.create_lifecycle_publisher(
+            EscTelemetry, "esc/telemetry", qos_profile_sensor_data, event_callbacks=NO_PUB_EVENTS
+        )
+        # Commands are sent only while active (on_activate starts the timer).
+        self._command_timer = self.create_timer(
+            1.0 / settings.command_rate_hz, self._send_command, autostart=False
+        )
+        command_sub = self.create_subscription(
+            ThrusterCommand,
+            "esc/command",
+            self._on_command,
+            RELIABLE_10,
+            event_callbacks=NO_SUB_EVENTS,
+        )
+        diag_timer = self.create_timer(settings.diagnostics_period_s, self._publish_diagnostics)
+        self._entities = [
+            (self.destroy_lifecycle_publisher, self._pub),
+            (self.destroy_subscription, command_sub),
+            (self.destroy_timer, self._command_timer),
+            (self.destroy_timer, diag_timer),
+        ]
+        decoder: FrameDecoder | KissDecoder = (
+            KissDecoder(settings.pole_pairs) if settings.protocol == "kiss" else FrameDecoder()
+        )
+        self._link = shared_ports().open(
+            settings.port,
+            settings.baud,
+            settings.reconnect_period_s,
+            lambda data, stamp_ns: self._on_data(decoder, data, stamp_ns),
+        )
+        self.get_logger().info(
+            f"thruster {settings.thruster_id}: {settings.protocol} telemetry on {settings.port} "
+            f"at {settings.baud} baud, expecting {settings.rate_hz:g} Hz"
+        )
+        return TransitionCallbackReturn.SUCCESS
 
-    def _close_port(self, reason: str) -> None:
-        with self._serial_lock:
-            port, self._serial = self._serial, None
-        if port is not None:
-            with contextlib.suppress(Exception):
-                port.close()
-        self._port_error = f"{self._port}: {reason}"
-        self.get_logger().warning(f"lost {self._port}: {reason}; retrying")
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._last_command_ns = None
+        self._last_send_ns = time.time_ns()
+        self._command_timer.reset()
+        self._active = True
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._active = False
+        self._command_timer.cancel()
+        self._applied = self._target = 0.0
+        self._write_command(0.0)
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._active = False
+        self._write_command(0.0)
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._active = False
+        self._write_command(0.0)
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _release(self) -> None:
+        """Close the port and destroy what configure made (back to unconfigured)."""
+        if self._link is not None:
+            shared_ports().close(self._link)
+            self._link = None
+        for destroy, entity in self._entities:
+            destroy(entity)
+        self._entities = []
+        self._settings = None
+
+    def shutdown(self) -> None:
+        """Send neutral to the bridge and close the port (the end of the node's process).
+
+        Not the lifecycle shutdown transition: after Ctrl-C rclpy has already shut the context
+        down, and a transition would fail publishing its event before reaching the port.
+        """
+        self._active = False
+        self._write_command(0.0)
+        if self._link is not None:
+            shared_ports().close(self._link)
+            self._link = None
+
+    # ---- serial side (the shared reader thread) --------------------------------------------
+
+    def _on_data(self, decoder: FrameDecoder | KissDecoder, data: bytes, stamp_ns: int) -> None:
+        frames = decoder.feed(data)
+        self._decoder_stats = decoder.stats()
+        if not frames:
+            return
+        for frame, frame_stamp in zip(
+            frames, frame_stamps(stamp_ns, [_mcu_time_us(f) for f in frames]), strict=True
+        ):
+            self._inbox.put(_Received(frame, frame_stamp))
+        # One task per burst: the executor clears the flag before it drains, so a frame that
+        # arrives during a drain schedules the next one.
+        if not self._drain_pending:
+            executor = self.executor
+            if executor is not None:
+                self._drain_pending = True
+                executor.create_task(self._drain)
 
     # ---- telemetry (executor thread) -------------------------------------------------------
 
     def _drain(self) -> None:
+        self._drain_pending = False
         while True:
             try:
                 received = self._inbox.get_nowait()
             except queue.Empty:
                 return
+            if self._settings is None:
+                continue  # frames read just before cleanup
             if isinstance(received.frame, KissFrame):
                 self._handle_kiss(received.frame, received.stamp_ns)
             elif isinstance(received.frame.message, TelemetryFrame):
@@ -265,6 +390,10 @@ class EscDriver(Node):
             self._counts["rejected"] += 1
             self._reject_reason = problems[0]
             return
+        self._counts["frames"] += 1
+        self._last_frame_ns = stamp_ns
+        if not self._active:
+            return  # inactive: the link is watched, nothing is published
         stats = self._decoder_stats
         window_stats = self._window_start[1]
         if stats.crc_errors > window_stats.crc_errors:
@@ -273,10 +402,11 @@ class EscDriver(Node):
             flags |= EscTelemetry.WATCHDOG_NEUTRAL
         if self._bridge_faults:
             flags |= EscTelemetry.BRIDGE_FAULT
+        thruster_id = self._settings.thruster_id if self._settings else ""
         msg = EscTelemetry()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        msg.header.frame_id = self._id
-        msg.thruster_id = self._id
+        msg.header.frame_id = thruster_id
+        msg.thruster_id = thruster_id
         msg.sequence = seq % (1 << 32)
         msg.command = float(command)
         msg.pwm_us = int(pwm_us)
@@ -286,9 +416,9 @@ class EscDriver(Node):
         msg.temperature_c = float(sample.temperature_c or 0.0)
         msg.status = flags | self._flags_pending
         self._flags_pending = 0
+        for callback in self._local_subscribers:
+            callback(msg)
         self._pub.publish(msg)
-        self._counts["frames"] += 1
-        self._last_frame_ns = stamp_ns
 
     # ---- commands (executor thread) --------------------------------------------------------
 
@@ -298,44 +428,46 @@ class EscDriver(Node):
         except ValueError as exc:
             self.get_logger().warning(f"refused command: {exc}", throttle_duration_sec=1.0)
             return
-        self._last_command_ns = self.get_clock().now().nanoseconds
+        self._last_command_ns = time.time_ns()
 
     def _send_command(self) -> None:
-        now = self.get_clock().now().nanoseconds
+        settings = self._settings
+        if settings is None or not self._active:
+            return
+        now = time.time_ns()
         self._watchdog = (
             self._last_command_ns is None
-            or (now - self._last_command_ns) * 1e-9 > self._command_timeout_s
+            or (now - self._last_command_ns) * 1e-9 > settings.command_timeout_s
         )
         target = 0.0 if self._watchdog else self._target
         dt = (now - self._last_send_ns) * 1e-9
         self._last_send_ns = now
-        self._applied = slew(self._applied, target, dt, self._max_rate)
+        self._applied = slew(self._applied, target, dt, settings.max_command_rate_per_s)
         self._write_command(self._applied)
 
     def _write_command(self, command: float) -> None:
-        frame = CommandFrame(command_to_pwm(command), self._bridge_timeout_ms)
-        data = encode_command(frame, self._tx_seq)
+        if self._link is None or self._settings is None:
+            return
+        frame = CommandFrame(command_to_pwm(command), self._settings.bridge_timeout_ms)
+        self._link.write(encode_command(frame, self._tx_seq))
         self._tx_seq = (self._tx_seq + 1) % 65536
-        with self._serial_lock:
-            port = self._serial
-            if port is None:
-                return
-            with contextlib.suppress(serial.SerialException, OSError):
-                port.write(data)
 
     # ---- diagnostics -----------------------------------------------------------------------
 
     def _publish_diagnostics(self) -> None:
+        settings, link = self._settings, self._link
+        if settings is None or link is None:
+            return
         start_counts, start_stats, start_seq = self._window_start
         stats = self._decoder_stats
         seq = self._sequence.counts()
-        now = self.get_clock().now().nanoseconds
+        now = time.time_ns()
         since = None if self._last_frame_ns is None else (now - self._last_frame_ns) * 1e-9
         window = LinkWindow(
-            period_s=self._diag_period_s,
-            expected_rate_hz=self._rate_hz,
-            port_open=self._serial is not None,
-            port_error=self._port_error,
+            period_s=settings.diagnostics_period_s,
+            expected_rate_hz=settings.rate_hz,
+            port_open=link.is_open,
+            port_error=link.error,
             frames=self._counts["frames"] - start_counts["frames"],
             crc_errors=stats.crc_errors - start_stats.crc_errors,
             truncated=stats.truncated - start_stats.truncated,
@@ -352,29 +484,23 @@ class EscDriver(Node):
             since_frame_s=since,
             watchdog_neutral=self._watchdog,
             bridge_faults=self._bridge_faults,
-            reconnects=self._reconnects,
+            reconnects=link.reconnects,
         )
         self._window_start = (dict(self._counts), stats, seq)
         health = assess_link(window)
+        level, message = health.level, health.message
+        if not self._active:
+            level = max(level, WARN)
+            message = f"inactive (commands not forwarded, telemetry not published); {message}"
         publish_status(
             self,
             self._diag_pub,
-            health.level,
-            status_name("esc", self._id),
-            health.message,
-            self._id,
-            [("port", self._port), *health.values],
+            level,
+            status_name("esc", settings.thruster_id),
+            message,
+            settings.thruster_id,
+            [("port", settings.port), *health.values],
         )
-
-    def shutdown(self) -> None:
-        """Send neutral to the bridge, stop the reader thread and close the port."""
-        self._write_command(0.0)
-        self._stop.set()
-        self._reader.join(timeout=1.0)
-        with self._serial_lock:
-            port, self._serial = self._serial, None
-        if port is not None:
-            port.close()
 
 
 def main(args: list[str] | None = None) -> None:

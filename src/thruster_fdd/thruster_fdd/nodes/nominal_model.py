@@ -13,13 +13,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.subscription import Subscription
 from thruster_fdd_msgs.msg import EscTelemetry, Residual
 
 from thruster_fdd.core.artifact import default_models_dir
@@ -34,6 +35,9 @@ from thruster_fdd.nodes.common import (
     run,
     status_name,
 )
+
+if TYPE_CHECKING:
+    from thruster_fdd.nodes.esc_driver import EscDriver
 
 # Reliable and transient-local with a deep history: a classifier busy with a window decision
 # catches up without losing samples, and one that joins late still gets the last 50 s of
@@ -116,7 +120,7 @@ class NominalModelNode(Node):
         telemetry_qos = (
             REPLAY_TELEMETRY_QOS if p("reliable_telemetry").value else qos_profile_sensor_data
         )
-        self.create_subscription(
+        self._telemetry_sub: Subscription | None = self.create_subscription(
             EscTelemetry,
             "esc/telemetry",
             self._on_telemetry,
@@ -146,6 +150,18 @@ class NominalModelNode(Node):
         goes out on DDS for every other subscriber.
         """
         self._local_subscribers.append(callback)
+
+    def take_telemetry_from(self, source: EscDriver) -> None:
+        """Get telemetry from ``source``, the ESC driver of this thruster in this process.
+
+        Replaces the ``esc/telemetry`` subscription by intra-process delivery (the container
+        does this when it hosts the driver too): the sample reaches the model without DDS and
+        the executor (``bench/bench_latency.py``).
+        """
+        if self._telemetry_sub is not None:
+            self.destroy_subscription(self._telemetry_sub)
+            self._telemetry_sub = None
+        source.add_local_subscriber(self._on_telemetry)
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         fixed = {name for name, _, _ in PARAMETERS} - {"model_dir"}
