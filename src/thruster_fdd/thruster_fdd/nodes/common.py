@@ -11,7 +11,7 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
@@ -40,6 +40,20 @@ def declare_parameters(node: Node, parameters: Iterable[tuple[str, object, str]]
     """Declare ``(name, default, description)`` parameters with their descriptors."""
     for name, default, description in parameters:
         node.declare_parameter(name, default, ParameterDescriptor(description=description))
+
+
+def refuse_start_only(
+    params: Iterable[Any], declared: Iterable[tuple[str, object, str]], runtime: set[str]
+) -> SetParametersResult | None:
+    """The refusal of a parameter change that touches a parameter read at start only (one of
+    ``declared`` not in ``runtime``), naming it; None when every change may go ahead."""
+    fixed = {name for name, _, _ in declared} - runtime
+    for param in params:
+        if param.name in fixed:
+            return SetParametersResult(
+                successful=False, reason=f"{param.name} is read at start only"
+            )
+    return None
 
 
 def diagnostics_publisher(node: Node) -> Publisher:

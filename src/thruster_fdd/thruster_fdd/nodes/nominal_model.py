@@ -32,6 +32,7 @@ from thruster_fdd.nodes.common import (
     declare_parameters,
     diagnostics_publisher,
     publish_status,
+    refuse_start_only,
     run,
     status_name,
 )
@@ -164,12 +165,9 @@ class NominalModelNode(Node):
         source.add_local_subscriber(self._on_telemetry)
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        fixed = {name for name, _, _ in PARAMETERS} - {"model_dir"}
-        for param in params:
-            if param.name in fixed:
-                return SetParametersResult(
-                    successful=False, reason=f"{param.name} is read at start only"
-                )
+        refused = refuse_start_only(params, PARAMETERS, {"model_dir"})
+        if refused is not None:
+            return refused
         for param in params:
             if param.name != "model_dir":
                 continue
