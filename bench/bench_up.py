@@ -6,7 +6,7 @@ of the set from /proc, and prints CPU (cores: CPU seconds per wall second over t
 interval) and resident memory (RSS; PSS, which shares library pages between processes, in
 brackets) of
 
-- the vehicle set: ESC drivers, models and recorder — what runs on a vehicle;
+- the vehicle set: ESC drivers, models, health node and recorder — what runs on a vehicle;
 - the simulation harness: emulators and command players;
 - ``up`` itself (its live table).
 
@@ -36,6 +36,7 @@ CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 # Process part by what its command line runs, first match wins: (text, part, group).
 PARTS = (
     ("thruster_fdd.nodes.recorder", "recorder", "vehicle"),
+    ("thruster_fdd.nodes.health", "health", "vehicle"),
     ("thruster_fdd.nodes.container esc_driver", "drivers+models", "vehicle"),
     ("thruster_fdd.nodes.container command_player", "command players", "sim"),
     ("thruster_fdd.nodes.container", "models", "vehicle"),
