@@ -273,9 +273,8 @@ def test_config_round_trip(tmp_path: Path) -> None:
 def test_structure_round_trip_and_checks(tmp_path: Path) -> None:
     """``structure`` loads from YAML, round-trips, is left out of a dump at its defaults and
     refuses unknown keys and bad values."""
-    config = dataclasses.replace(
-        load_config("t100"), structure=Structure(esc_tau2_s=0.1, i_idle_per_krpm_a=0.05, regen=False)
-    )
+    structure = Structure(esc_tau2_s=0.1, i_idle_per_krpm_a=0.05, regen=False)
+    config = dataclasses.replace(load_config("t100"), structure=structure)
     dump_config(config, tmp_path / "s.yaml")
     assert load_config(tmp_path / "s.yaml") == config
     assert "structure" in (tmp_path / "s.yaml").read_text()

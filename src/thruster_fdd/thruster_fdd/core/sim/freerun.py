@@ -6,8 +6,9 @@ deadband, ESC lag and slew limit, current limit (``plant.limited_duty``), voltag
 Coulomb and viscous friction, reverse ``k_q``, speed-dependent resistance and ESC drive loss, the
 same 10 ms substeps and the same order of floating-point operations, so the two agree to
 rounding; also every switch of ``SimConfig.structure`` (second ESC stage, speed-dependent idle
-current, coasting instead of regeneration). The discrepancy workflow calls it thousands of times per run (least-squares Jacobians
-by finite differences), where the reference's Python loop costs about 0.2 s per 6000 samples.
+current, coasting instead of regeneration). The discrepancy workflow calls it thousands of
+times per run (least-squares Jacobians by finite differences), where the reference's Python
+loop costs about 0.2 s per 6000 samples.
 
 Not covered (the workflow does not need them): conditions other than a healthy unit (the
 once-per-revolution ripple of a broken blade), unit spread, the winding temperature, thrust and

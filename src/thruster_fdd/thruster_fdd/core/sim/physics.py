@@ -3,8 +3,9 @@
 Signal path, in order: dead time -> deadband -> ESC duty (lag, optional second stage, slew
 limit) -> quasi-static motor current -> rotor -> bus current (current limit) -> bus voltage
 (sag) -> thrust; then the measurement model (``SimConfig.structure`` switches the second ESC
-stage, a speed-dependent idle current and coasting instead of regeneration). ``ThrusterSimulator`` is the only stateful object; ``simulate`` runs it over a
-command history and returns a ``Trace``.
+stage, a speed-dependent idle current and coasting instead of regeneration).
+``ThrusterSimulator`` is the only stateful object; ``simulate`` runs it over a command history
+and returns a ``Trace``.
 """
 
 from __future__ import annotations
