@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the workflow and write the report."""
-    from thruster_fdd.core.discrepancy.report import write_report
+    from thruster_fdd.core.discrepancy.report import check_out_dir, write_report
     from thruster_fdd.core.discrepancy.search import run_workflow
     from thruster_fdd.core.sim.config import load_config
     from thruster_fdd.core.traces.files import read_traces
@@ -44,8 +44,7 @@ def run(args: argparse.Namespace) -> int:
         raise BadInputError(f"--measured {args.measured}: no such trace file")
     if args.workers < 1:
         raise BadInputError(f"--workers must be >= 1, got {args.workers}")
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"--out {args.out}: exists and is not a folder")
+    check_out_dir(args.out)
     source = load_config(args.start)
     traces = read_traces([args.measured])
     if len(traces) > 1:

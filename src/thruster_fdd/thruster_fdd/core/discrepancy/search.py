@@ -25,15 +25,21 @@ zero only says the model's speed should be under the floor.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 
 import numpy as np
 from tqdm import tqdm
 
-from thruster_fdd.core.discrepancy.fit import Fit, calibrate
+from thruster_fdd.core.discrepancy.fit import (
+    BASE_FIT,
+    BASE_RANGE,
+    Fit,
+    calibrate,
+    without_effects,
+)
 from thruster_fdd.core.discrepancy.measure import (
     CHANNELS,
     Measured,
@@ -67,6 +73,16 @@ CANDIDATE_ITER = 6
 
 
 MAX_ROUNDS = 3
+
+
+WIDE_RANGE = 4.0
+"""Factor around the start to which a base parameter found on its ``BASE_RANGE`` bound may be
+widened (``base_changes``)."""
+
+
+BASE_GAIN = 0.5
+"""Fraction of the held-out excess error a base change (a widened bound, the other braking
+law) must remove to be accepted (``try_base_change``)."""
 
 
 @dataclass(frozen=True)
@@ -109,6 +125,45 @@ class Round:
 
 
 @dataclass(frozen=True)
+class Superfluous:
+    """The superfluity test of one effect the start holds (``test_superfluous``).
+
+    Attributes
+    ----------
+    name : str
+        Effect name.
+    start_params : dict of str to float
+        Its parameters in the start configuration (what the start claims).
+    fitted : dict of str to float
+        Its parameters as the calibration fitted them freely.
+    fitted_std : dict of str to float
+        Their standard deviations.
+    contradicted : bool
+        Whether the fit puts every parameter more than ``CONTRADICTED`` standard deviations
+        from the start's value, towards none.
+    score_with : float
+        Held-out score of the model with it (fitted freely).
+    without : Fit or None
+        The model re-fitted without it (only if ``contradicted``).
+    delta_bic : float
+        BIC without it minus BIC with it (negative: it does not pay; nan if not re-fitted).
+    superfluous : bool
+        Whether it passed: contradicted, ``delta_bic < 0`` and a held-out score without it
+        no higher than with it.
+    """
+
+    name: str
+    start_params: dict[str, float]
+    fitted: dict[str, float]
+    fitted_std: dict[str, float]
+    contradicted: bool
+    score_with: float
+    without: Fit | None
+    delta_bic: float
+    superfluous: bool
+
+
+@dataclass(frozen=True)
 class Result:
     """Outcome of the whole workflow.
 
@@ -126,6 +181,15 @@ class Result:
         Search rounds.
     warnings : tuple of str
         Non-fatal problems (e.g. a dropped effect the configuration lacks).
+    base_changes : tuple of str
+        Changes of the base model the search made (``base_changes``), one line each.
+    superfluous : tuple of Superfluous
+        The superfluity test of every effect of the start that was not named; those that
+        passed are removed from ``final``.
+    anchor : SimConfig or None
+        The starting configuration (after ``--drop``), the anchor of the base bounds.
+    ranges : dict of str to float
+        Bound factors of base parameters widened by the search (others: ``BASE_RANGE``).
     """
 
     verdict: str
@@ -134,6 +198,10 @@ class Result:
     added: tuple[str, ...]
     rounds: tuple[Round, ...]
     warnings: tuple[str, ...]
+    base_changes: tuple[str, ...] = ()
+    superfluous: tuple[Superfluous, ...] = ()
+    anchor: SimConfig | None = None
+    ranges: dict[str, float] = field(default_factory=dict)
 
     def report(self) -> dict:
         """The report.json mapping, exactly the keys of docs/contracts.md."""
@@ -148,9 +216,19 @@ class Result:
                     "uncertainty": {p: self.final.uncertainty(f"{name}.{p}") for p in params},
                 }
             )
+        superfluous = [
+            {
+                "name": sup.name,
+                "params": sup.start_params,
+                "uncertainty": sup.fitted_std,
+            }
+            for sup in self.superfluous
+            if sup.superfluous
+        ]
         return {
             "verdict": self.verdict,
             "missing_effects": missing,
+            "superfluous_effects": superfluous,
             "gap_before": self.start.gap.public(),
             "gap_after": self.final.gap.public(),
         }
@@ -208,8 +286,11 @@ def candidate_grid(name: str, config: SimConfig, data: Measured) -> list[dict[st
 
 
 def _score_config(config: SimConfig, data: Measured) -> float:
+    """Mean squared residual on the fit samples, noise units (inf if the simulation blows up)."""
     res = weighted_residuals(simulate_model(config, data), data)
-    return float(sum(np.mean(res[c][data.fit] ** 2) / data.sigma[c] ** 2 for c in CHANNELS))
+    with np.errstate(over="ignore", invalid="ignore"):
+        score = float(sum(np.mean(res[c][data.fit] ** 2) / data.sigma[c] ** 2 for c in CHANNELS))
+    return score if math.isfinite(score) else math.inf
 
 
 def try_candidate(
@@ -218,6 +299,8 @@ def try_candidate(
     data: Measured,
     origin: SimConfig | None = None,
     max_iter: int = CANDIDATE_ITER,
+    anchor: SimConfig | None = None,
+    ranges: Mapping[str, float] | None = None,
 ) -> Candidate:
     """Add effect ``name`` to ``base``, grid-initialise it, re-fit, and test it.
 
@@ -243,8 +326,12 @@ def try_candidate(
         scores = [_score_config(c, data) for c in trials]
         starts.append(trials[int(np.argmin(scores))])
         n_trials += len(trials)
-    # ``origin`` holds the user's base values, the anchor of the base parameters' bounds.
-    fits = [calibrate(start, data, max_iter=max_iter, anchor=origin) for start in starts]
+    # The anchor of the base parameters' bounds: the user's start (``origin`` holds its base
+    # values).
+    anchor = origin if anchor is None else anchor
+    fits = [
+        calibrate(start, data, max_iter=max_iter, anchor=anchor, ranges=ranges) for start in starts
+    ]
     fit = min(fits, key=lambda f: f.bic)
     fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + n_trials)
     delta_bic = fit.bic - base.bic  # both penalise all their parameters
@@ -255,7 +342,7 @@ def try_candidate(
     # Measured on the fit samples: an effect active in few places (a current limit binding for
     # 2 s of a 60 s trace) may be active in none of the held-out blocks, where its removal
     # changes nothing; the held-out gain above already checks that the re-fit generalises.
-    ablated = replace(fit.config, effects=tuple(e for e in fit.config.effects if e.name != name))
+    ablated = without_effects(fit.config, (name,))
     base_fit = gap(simulate_model(base.config, data), data, data.fit).score
     fit_score = gap(simulate_model(fit.config, data), data, data.fit).score
     ablated_score = gap(simulate_model(ablated, data), data, data.fit).score
@@ -272,25 +359,184 @@ def try_candidate(
     )
 
 
-def _run_candidate(args: tuple[str, Fit, Measured, SimConfig | None]) -> Candidate:
-    return try_candidate(*args)
+def _run_candidate(args: tuple) -> Candidate:
+    what, base, data, origin, anchor, ranges = args
+    if isinstance(what, BaseChange):
+        return try_base_change(what, base, data, anchor, origin)
+    return try_candidate(what, base, data, origin, anchor=anchor, ranges=ranges)
 
 
-def _recalibrate(config: SimConfig, added: Sequence[str], chosen: Candidate, data: Measured) -> Fit:
+def _recalibrate(
+    config: SimConfig,
+    origin: SimConfig,
+    added: Sequence[str],
+    chosen: Candidate,
+    data: Measured,
+    ranges: Mapping[str, float],
+) -> Fit:
     """Full calibration with ``added`` and ``chosen`` effects, from the better of two origins.
 
-    The origins: the start's values plus the effects (the start's fit may have drifted to
-    compensate for what was missing) and the candidate's re-fit; whichever fits better to begin
-    with is calibrated, and the candidate's re-fit is kept if that does not improve its BIC.
+    The origins: ``origin`` (the start's values, with the base changes made so far)
+    plus the effects (the start's fit may have drifted to compensate for what was missing)
+    and the candidate's re-fit; whichever fits better to begin with is calibrated, and the
+    candidate's re-fit is kept if that does not improve its BIC. ``config`` is the anchor.
     """
-    reset = config
+    reset = origin
     for name in (*added, chosen.name):
         reset = set_effect(reset, chosen.fit.config.effect(name))
     origins = (reset, chosen.fit.config)
-    fit = calibrate(min(origins, key=lambda c: _score_config(c, data)), data, anchor=config)
+    best = min(origins, key=lambda c: _score_config(c, data))
+    fit = calibrate(best, data, anchor=config, ranges=ranges)
     if fit.bic > chosen.fit.bic:
-        fit = calibrate(chosen.fit.config, data, anchor=config)
+        fit = calibrate(chosen.fit.config, data, anchor=config, ranges=ranges)
     return fit
+
+
+def _at_bound(fit: Fit, anchor: SimConfig, ranges: Mapping[str, float]) -> list[str]:
+    """Base parameters (``params.NAME`` of ``BASE_FIT``) of ``fit`` on their ``BASE_RANGE``
+    bound (not yet widened)."""
+    out = []
+    for name in BASE_FIT:
+        key = f"params.{name}"
+        if key == "params.i_idle_a" or key in ranges:
+            continue  # i_idle_a: linear from 0, its bounds are physical, not around the start
+        ratio = abs(math.log(getattr(fit.config.params, name) / getattr(anchor.params, name)))
+        if ratio >= math.log(BASE_RANGE) - 0.01:
+            out.append(key)
+    return out
+
+
+@dataclass(frozen=True)
+class BaseChange:
+    """A change of the base model, tried beside the effects in a search round.
+
+    Attributes
+    ----------
+    label : str
+        What it changes (``base: ...``).
+    config : SimConfig
+        The current model with the change, to be re-fitted.
+    ranges : dict of str to float
+        Bound factors of base parameters with the change.
+    origin : SimConfig
+        The uncalibrated start with the change (origin of later re-fits).
+    """
+
+    label: str
+    config: SimConfig
+    ranges: dict[str, float]
+    origin: SimConfig
+
+
+def base_changes(
+    current: Fit, config: SimConfig, origin: SimConfig, ranges: Mapping[str, float]
+) -> list[BaseChange]:
+    """Base changes a round may try: base parameters the calibration left on their
+    ``BASE_RANGE`` bound re-fitted within ``WIDE_RANGE`` (a thruster of the same class outside
+    the usual range: another propeller, wiring, rotor), and the other braking law (coasting
+    instead of regeneration, or the reverse), a switch least squares cannot fit; each once."""
+    out = []
+    edge = _at_bound(current, config, ranges)
+    if edge:
+        names = ", ".join(k.split(".")[1] for k in edge)
+        out.append(
+            BaseChange(
+                f"base: {names} within x{WIDE_RANGE:g}",
+                current.config,
+                {**ranges, **dict.fromkeys(edge, WIDE_RANGE)},
+                origin,
+            )
+        )
+    if current.config.structure.regen == config.structure.regen:
+        regen = not config.structure.regen
+        out.append(
+            BaseChange(
+                "base: regenerative braking" if regen else "base: coasting, no regeneration",
+                replace(current.config, structure=replace(current.config.structure, regen=regen)),
+                dict(ranges),
+                replace(origin, structure=replace(origin.structure, regen=regen)),
+            )
+        )
+    return out
+
+
+def try_base_change(
+    change: BaseChange, base: Fit, data: Measured, config: SimConfig, named: SimConfig
+) -> Candidate:
+    """Re-fit ``base`` with ``change``, from two origins like ``try_candidate``: the current
+    model and ``named`` (the uncalibrated start plus the effects named so far), each with the
+    change; the lower BIC is kept. Accepted on a lower BIC and a held-out gain of at least
+    ``BASE_GAIN`` (stricter than an effect's ``MIN_GAIN``: a parameter that leaves its range
+    to explain only part of the gap is more likely making up for something else; on the T200
+    bench trace ``r_ohm`` would go to a quarter of the preset's, remove 27 % of the excess and
+    leave the deadband 21 % small)."""
+    regen = change.config.structure.regen
+    other = replace(named, structure=replace(named.structure, regen=regen))
+    fits = [
+        calibrate(c, data, max_iter=CANDIDATE_ITER, anchor=config, ranges=change.ranges)
+        for c in (change.config, other)
+    ]
+    fit = min(fits, key=lambda f: f.bic)
+    fit = replace(fit, n_sims=sum(f.n_sims for f in fits))
+    delta_bic = fit.bic - base.bic
+    gain = (base.gap.score - fit.gap.score) / max(base.gap.score - 1.0, 1e-12)
+    accepted = delta_bic < 0.0 and gain >= BASE_GAIN
+    return Candidate(change.label, fit, delta_bic, gain, accepted, gain)
+
+
+CONTRADICTED = 3.0
+"""Standard deviations between the start's value of an effect and the fitted one, towards
+none, for the start's value to count as contradicted by the data (``test_superfluous``)."""
+
+
+NEUTRAL: dict[str, float] = {
+    "dead_time": 0.0,
+    "deadband": 0.0,
+    "esc_lag": 0.0,
+    "slew_rate_limit": math.inf,
+    "coulomb_friction": 0.0,
+    "viscous_friction": 0.0,
+    "voltage_sag": 0.0,
+    "current_limit": math.inf,
+}
+"""The parameter value at which each effect does nothing (its direction of 'none')."""
+
+
+def test_superfluous(
+    name: str,
+    final: Fit,
+    config: SimConfig,
+    data: Measured,
+    ranges: Mapping[str, float],
+) -> Superfluous:
+    """Whether effect ``name`` of the start is one the thruster lacks.
+
+    Superfluous when (1) the calibration, fitting the effect freely, moved every parameter more
+    than ``CONTRADICTED`` standard deviations from the start's value towards none (the data
+    contradict the start's claim, not merely fail to confirm it: a current limit that never
+    binds, a friction torque under the noise, stay), and (2) the model re-fitted without it is
+    no worse: a lower BIC and a held-out score no higher than with it.
+    """
+    claimed = config.effect(name).params()
+    effect = final.config.effect(name)
+    fitted = effect.params()
+    std = {p: final.uncertainty(f"{name}.{p}") for p in claimed}
+    neutral = NEUTRAL[name]
+    contradicted = all(
+        math.isfinite(std[p])
+        and (fitted[p] - claimed[p]) * (neutral - claimed[p]) > 0.0
+        and abs(fitted[p] - claimed[p]) > CONTRADICTED * std[p]
+        for p in claimed
+    )
+    if not contradicted:
+        return Superfluous(
+            name, claimed, fitted, std, False, final.gap.score, None, math.nan, False
+        )
+    lean = without_effects(final.config, (name,))
+    without = calibrate(lean, data, max_iter=CANDIDATE_ITER, anchor=config, ranges=ranges)
+    delta_bic = without.bic - final.bic
+    ok = delta_bic < 0.0 and without.gap.score <= final.gap.score
+    return Superfluous(name, claimed, fitted, std, True, final.gap.score, without, delta_bic, ok)
 
 
 def search(
@@ -300,39 +546,47 @@ def search(
     workers: int = 2,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
-) -> tuple[Fit, Fit, tuple[str, ...], tuple[Round, ...]]:
-    """Calibrate ``config`` and add missing effects while an addition helps.
+    warnings: tuple[str, ...] = (),
+) -> Result:
+    """Calibrate ``config``, adjust its base, add missing effects while an addition helps,
+    and drop effects of the start the thruster lacks.
 
     Returns
     -------
-    (start, final, added, rounds)
-        Calibrated start, calibrated final configuration, named effects, search rounds.
+    Result
+        With the verdict: ``effects_found`` if an effect was named missing or superfluous,
+        else ``unexplained`` if the held-out score is above ``STRUCTURED``, else
+        ``nothing_missing``.
     """
     say = log or (lambda _msg: None)
     start = calibrate(config, data)
     say(f"calibrated start: held-out score {start.gap.score:.2f} ({start.n_sims} simulations)")
-    current = start
+    current, origin, ranges = start, config, {}
     added: list[str] = []
+    changed: list[str] = []
     rounds: list[Round] = []
     ctx = get_context("fork")
-    for _ in range(MAX_ROUNDS):
+    while len(added) < MAX_ROUNDS and current.gap.score > 1.0 + 1e-9:
         names = [n for n in EFFECTS if current.config.effect(n) is None]
-        if not names or current.gap.score <= 1.0 + 1e-9:
+        changes = base_changes(current, config, origin, ranges)
+        if not names and not changes:
             break
         # Control: the same model re-fitted once more, so that a candidate is credited only
         # with what its effect adds, not with what further fitting of the base would give.
-        control = calibrate(current.config, data, max_iter=CANDIDATE_ITER, anchor=config)
+        control = calibrate(
+            current.config, data, max_iter=CANDIDATE_ITER, anchor=config, ranges=ranges
+        )
         if control.bic < current.bic:
             current = replace(control, n_sims=control.n_sims + current.n_sims)
-        origin = config
+        named = origin
         for name in added:
-            origin = set_effect(origin, current.config.effect(name))
-        jobs = [(n, current, data, origin) for n in names]
+            named = set_effect(named, current.config.effect(name))
+        jobs = [(w, current, data, named, config, ranges) for w in [*names, *changes]]
         bar = tqdm(
             total=len(jobs),
             desc=f"candidates (round {len(rounds) + 1})",
             disable=not progress,
-            unit="effect",
+            unit="candidate",
         )
         results: list[Candidate] = []
         if workers > 1:
@@ -352,22 +606,69 @@ def search(
                 f"held-out score {c.fit.gap.score:9.2f}{'  accepted' if c.accepted else ''}"
             )
         # The candidate re-fits are short (CANDIDATE_ITER); the best two accepted ones get a
-        # full calibration each and the better of those (held-out score) is named. (A hidden
+        # full calibration each and the better of those (held-out score) is chosen. (A hidden
         # viscous friction, for instance, is at first fitted better by a Coulomb torque.)
-        finals = [(c, _recalibrate(config, added, c, data)) for c in accepted[:2]]
+        by_label = {ch.label: ch for ch in changes}
+        finals = []
+        for c in accepted[:2]:
+            if c.name in by_label:
+                ch = by_label[c.name]
+                full = calibrate(c.fit.config, data, anchor=config, ranges=ch.ranges)
+                finals.append((c, full if full.bic <= c.fit.bic else c.fit))
+            else:
+                finals.append((c, _recalibrate(config, origin, added, c, data, ranges)))
         chosen, best = min(finals, key=lambda cf: cf[1].gap.score) if finals else (None, None)
         rounds.append(
             Round(before=current, candidates=tuple(results), chosen=chosen.name if chosen else None)
         )
         if chosen is None or best is None:
             break
-        added.append(chosen.name)
+        if chosen.name in by_label:
+            ch = by_label[chosen.name]
+            ranges, origin = ch.ranges, ch.origin
+            changed.append(
+                f"{chosen.name.removeprefix('base: ')} (held-out score {current.gap.score:.2f} "
+                f"-> {best.gap.score:.2f})"
+            )
+        else:
+            added.append(chosen.name)
         current = best
         say(
-            f"added {chosen.name}: held-out score {current.gap.score:.2f} "
-            f"({sum(c.fit.n_sims for c in results) + current.n_sims} simulations)"
+            f"{'changed' if chosen.name in by_label else 'added'} {chosen.name}: held-out score "
+            f"{current.gap.score:.2f} ({sum(c.fit.n_sims for c in results) + current.n_sims} "
+            "simulations)"
         )
-    return start, current, tuple(added), tuple(rounds)
+    tests = tuple(
+        test_superfluous(e.name, current, config, data, ranges)
+        for e in config.effects
+        if e.name not in added
+    )
+    dropped = [t for t in tests if t.superfluous]
+    for t in tests:
+        values = ", ".join(
+            f"{p} {t.fitted[p]:.4g} +- {t.fitted_std[p]:.2g} (start {v:.4g})"
+            for p, v in t.start_params.items()
+        )
+        without = (
+            f"; without: dBIC {t.delta_bic:.1f}, held-out score {t.without.gap.score:.2f}"
+            if t.without is not None
+            else ""
+        )
+        say(f"  start's {t.name}: {values}{without}{'  superfluous' if t.superfluous else ''}")
+    if dropped:
+        lean = without_effects(current.config, {t.name for t in dropped})
+        current = calibrate(lean, data, anchor=config, ranges=ranges)
+        say(f"dropped {', '.join(t.name for t in dropped)}: held-out score {current.gap.score:.2f}")
+    if added or dropped:
+        verdict = "effects_found"
+    elif current.gap.score > STRUCTURED:
+        verdict = "unexplained"
+    else:
+        verdict = "nothing_missing"
+    return Result(
+        verdict, start, current, tuple(added), tuple(rounds), warnings, tuple(changed), tests,
+        config, dict(ranges),
+    )  # fmt: skip
 
 
 def run_workflow(
@@ -403,11 +704,5 @@ def run_workflow(
     """
     config, warnings = start_config(source, drop)
     data = prepare_measured(trace, config)
-    start, final, added, rounds = search(config, data, workers=workers, progress=progress, log=log)
-    if added:
-        verdict = "effects_found"
-    elif final.gap.score > STRUCTURED:
-        verdict = "unexplained"
-    else:
-        verdict = "nothing_missing"
-    return Result(verdict, start, final, added, rounds, warnings), data
+    result = search(config, data, workers=workers, progress=progress, log=log, warnings=warnings)
+    return result, data
