@@ -378,7 +378,8 @@ def make_mismatch_case(
     """Build a mismatch case: base physics differ from the start preset, effects hidden.
 
     The measured thruster is ``preset`` with ``esc_lag`` as its only effect besides the hidden
-    ones, changed by ``draw_mismatch`` and drawn with the preset's unit spread and noise; the
+    ones (values from ``plausible_ranges`` of the changed thruster), changed by
+    ``draw_mismatch`` and drawn with the preset's unit spread and noise; the
     start is ``preset`` with ``esc_lag`` only, plus the ``superfluous`` effects (at the
     preset's value, else ``SUPERFLUOUS_VALUES``). Driven by the ``mixed`` signal.
 
@@ -404,9 +405,11 @@ def make_mismatch_case(
     if lag is None:
         raise ValueError(f"preset {preset!r} has no esc_lag")
     base = replace(source, effects=(lag,))
-    ranges = plausible_ranges(base)
     rng = np.random.default_rng([seed, 0x3157])
     truth, switches = draw_mismatch(base, rng)
+    # Scaled to the measured thruster itself, so a current limit binds and a friction torque
+    # weighs the same share of its load whatever the switches did to its current and speed.
+    ranges = plausible_ranges(truth)
     for name in hidden:
         attr, lo, hi = ranges[name]
         truth = set_effect(truth, make_effect(name, {attr: float(rng.uniform(lo, hi))}))

@@ -39,12 +39,13 @@ STRUCTURE_FIT: dict[str, float] = {
 }
 """Structural base terms (``owner.name`` -> the value that means absent) fitted where the
 anchor lacks them: drive saturation (fitted as ``1 / esc_v_sat_v``, so none is 0), a
-speed-dependent winding loss, idle current growing with speed, a second ESC stage; each may fit
-to 0. The second stage only behind an ``esc_lag`` and never slower than it: two stages in
-cascade commute, so ordering them removes a symmetry of the fit, and a second stage without a
-first would stand in for a missing ``esc_lag``. A term the anchor has was calibrated with it and
-is kept: refitted by simulation error it trades against the effects (on the T200 bench trace
-the t200's drive loss and speed-dependent resistance absorb the deadband: 0.0093 instead of
+speed-dependent winding loss, idle current growing with speed, each of which may fit to 0; and
+a second ESC stage once the search adopted one (a base change: fitted freely it traded with
+the dead time, the lag and the slew limit, and stuck fits in wrong splits of the delay), only
+behind an ``esc_lag`` and never slower than it (two stages in cascade commute: ordering them
+removes a symmetry of the fit). A term the anchor has was calibrated with it and is kept:
+refitted by simulation error it trades against the effects (on the T200 bench trace the
+t200's drive loss and speed-dependent resistance absorb the deadband: 0.0093 instead of
 0.034)."""
 
 
@@ -152,6 +153,12 @@ def without_effects(config: SimConfig, names: Collection[str]) -> SimConfig:
     return config
 
 
+def _second_stage(config: SimConfig) -> bool:
+    """Whether ``config`` has a second ESC stage to fit: adopted by the search (a base change,
+    ``search.base_changes``), behind an ``esc_lag``."""
+    return _lag(config) > 0.0 and config.structure.esc_tau2_s > 0.0
+
+
 def free_parameters(config: SimConfig, anchor: SimConfig | None = None) -> tuple[str, ...]:
     """Keys (``owner.name``) calibrated for ``config``: ``BASE_FIT``, the ``STRUCTURE_FIT``
     terms ``anchor`` (default ``config``) lacks, and every effect parameter."""
@@ -160,7 +167,7 @@ def free_parameters(config: SimConfig, anchor: SimConfig | None = None) -> tuple
     keys += [
         k
         for k, absent in STRUCTURE_FIT.items()
-        if _get(anchor, k) == absent and (k != _TAU2 or _lag(config) > 0.0)
+        if _get(anchor, k) == absent and (k != _TAU2 or _second_stage(config))
     ]
     keys += [f"{e.name}.{p}" for e in config.effects for p in e.params()]
     return tuple(keys)
