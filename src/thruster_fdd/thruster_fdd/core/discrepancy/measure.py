@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import binary_dilation, median_filter
 
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import Measurement, SimConfig
@@ -118,16 +118,24 @@ def _noise_sigma(x: np.ndarray, floor: float) -> float:
     return max(1.4826 * mad / math.sqrt(6.0), floor)
 
 
+BEND_SAMPLES = 2
+"""Samples on either side of a command bend that despiking leaves alone."""
+
+
 def _despike(x: np.ndarray, sigma: float, command: np.ndarray) -> np.ndarray:
     """Replace isolated spikes (more than 8 sigma off the 5-sample median) by that median.
 
-    Not where the command (shape (n,)) bends (second difference over 0.02): a one-sample
-    response to a one-sample command, as in a bench log with one rest row at neutral between
-    two steps, is the thruster's, not a telemetry glitch. Ramps and holds are straight.
+    Not within ``BEND_SAMPLES`` of where the command (shape (n,)) bends (second difference
+    over 0.02): a one-sample response to a one-sample command, as in a bench log with one rest
+    row at neutral between two steps, or the one-sample current peak of a fast thruster after
+    a step, is the thruster's, not a telemetry glitch. Ramps and holds are straight.
     """
     med = median_filter(x, size=5, mode="nearest")
     padded = np.pad(command, 1, mode="edge")
     bend = np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:]) > 0.02
+    # Also the samples just after: a fast thruster's current peaks for one sample a step or
+    # two after the command jumps (t200: 0.1 s ESC lag, 0.1 ohm), and that peak is real.
+    bend = binary_dilation(bend, iterations=BEND_SAMPLES)
     spikes = ~bend & (np.abs(x - med) > 8.0 * sigma)
     return np.where(spikes, med, x)
 

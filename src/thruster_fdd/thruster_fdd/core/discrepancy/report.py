@@ -25,7 +25,13 @@ from thruster_fdd.core.discrepancy.measure import (
     simulate_model,
     weighted_residuals,
 )
-from thruster_fdd.core.discrepancy.search import CONTRADICTED, MIN_GAIN, STRUCTURED, Result
+from thruster_fdd.core.discrepancy.search import (
+    AT_BOUND,
+    CONTRADICTED,
+    MIN_GAIN,
+    STRUCTURED,
+    Result,
+)
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import dump_config
 
@@ -180,7 +186,7 @@ def at_bound(result: Result) -> list[str]:
             continue
         ref = float(getattr(result.anchor.params, name))
         factor = result.ranges.get(key, BASE_RANGE)
-        if abs(math.log(value / ref)) >= math.log(factor) - 0.01:
+        if abs(math.log(value / ref)) >= math.log(factor) - AT_BOUND:
             out.append(f"{name} {_fmt(float(value))} (start {_fmt(ref)}, bound x{factor:g})")
     return out
 
@@ -273,7 +279,7 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         _gap_rows("calibrated start", result.start),
     ]
     for rnd in result.rounds:
-        chosen = next((c for c in rnd.candidates if c.name == rnd.chosen), None)
+        chosen = next((c for c in rnd.candidates if c.name == rnd.chosen and c.accepted), None)
         if chosen is not None:
             lines.append(_gap_rows(f"+ {chosen.name} (candidate re-fit)", chosen.fit))
     lines += [_gap_rows("final (calibrated)", result.final), ""]
@@ -289,8 +295,9 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
             "|---|---|---|---|---|---|",
         ]
         for c in sorted(rnd.candidates, key=lambda c: c.fit.gap.score):
+            name = f"`{c.name}` + {c.joint.label}" if c.joint else f"`{c.name}`"
             lines.append(
-                f"| `{c.name}` | {c.delta_bic:.1f} | {c.gain:.2f} | {c.own_gain:.2f} | "
+                f"| {name} | {c.delta_bic:.1f} | {c.gain:.2f} | {c.own_gain:.2f} | "
                 f"{c.fit.gap.score:.2f} | {'yes' if c.accepted else 'no'} |"
             )
         lines.append("")
@@ -347,6 +354,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
                 "candidates": [
                     {
                         "name": c.name,
+                        "with": c.joint.label if c.joint else None,
                         "delta_bic": c.delta_bic,
                         "gain": c.gain,
                         "held_out_score": c.fit.gap.score,
