@@ -13,7 +13,12 @@ import pytest
 
 from thruster_fdd.cli import main
 from thruster_fdd.core.discrepancy import report as report_module
-from thruster_fdd.core.discrepancy.cases import PLAUSIBLE, make_case
+from thruster_fdd.core.discrepancy.cases import (
+    MISMATCH_SWITCHES,
+    PLAUSIBLE,
+    make_case,
+    make_mismatch_case,
+)
 from thruster_fdd.core.discrepancy.fit import BASE_RANGE, calibrate
 from thruster_fdd.core.discrepancy.measure import (
     Measured,
@@ -24,7 +29,7 @@ from thruster_fdd.core.discrepancy.measure import (
 )
 from thruster_fdd.core.discrepancy.report import REPORT_FILES, check_out_dir, write_report
 from thruster_fdd.core.discrepancy.search import Result, run_workflow, start_config
-from thruster_fdd.core.sim.config import load_config, set_effect
+from thruster_fdd.core.sim.config import Measurement, load_config, set_effect
 from thruster_fdd.core.sim.physics import simulate
 from thruster_fdd.core.sim.signals import make_signal
 from thruster_fdd.core.traces.csv_io import write_trace_csv
@@ -160,6 +165,38 @@ def test_case_clean_is_the_same_unit_without_noise() -> None:
     noise = case.trace.rpm[moving] - case.clean.rpm[moving]
     assert 5.0 < float(np.median(np.abs(noise))) * 1.4826 < 30.0  # t100 rpm noise 15
     assert np.any((case.clean.rpm != 0.0) & (np.abs(case.clean.rpm) < 300.0))
+
+
+def test_mismatch_case_differs_from_its_start() -> None:
+    """``make_mismatch_case``: the measured thruster is the preset changed by the drawn
+    switches (the same for the same seed), with the hidden effects at values in the ranges
+    scaled to it; the start is the preset with ``esc_lag`` and the superfluous effects only."""
+    for preset in ("t100", "t200"):
+        source = load_config(preset)
+        case = make_mismatch_case(
+            ("deadband",), 3, preset=preset, superfluous=("dead_time",), duration_s=30.0
+        )
+        again = make_mismatch_case(
+            ("deadband",), 3, preset=preset, superfluous=("dead_time",), duration_s=30.0
+        )
+        np.testing.assert_array_equal(case.trace.rpm, again.trace.rpm)
+        assert case.switches
+        assert case.switches == again.switches
+        assert set(case.switches) <= set(MISMATCH_SWITCHES)
+        assert sorted(case.start.effect_names) == ["dead_time", "esc_lag"]
+        assert case.start.params == source.params
+        assert case.superfluous == ("dead_time",)
+        attr, lo, hi = PLAUSIBLE["deadband"]
+        assert 0.9 * lo <= case.hidden["deadband"][attr] <= 1.1 * hi  # 3 % unit spread
+        # The thruster is not the start: its noise-free response differs beyond the noise.
+        start_run = simulate(
+            replace(case.start, measurement=Measurement(), spread=0.0),
+            case.clean.t,
+            case.clean.command,
+        )
+        assert float(np.max(np.abs(start_run.rpm - case.clean.rpm))) > 100.0
+    with pytest.raises(ValueError, match="cannot be hidden"):
+        make_mismatch_case(("esc_lag",), 0)
 
 
 def test_start_config_drop() -> None:
