@@ -19,7 +19,7 @@ from thruster_fdd.core.discrepancy.cases import (
     make_case,
     make_mismatch_case,
 )
-from thruster_fdd.core.discrepancy.fit import BASE_RANGE, calibrate
+from thruster_fdd.core.discrepancy.fit import BASE_RANGE, Fit, calibrate
 from thruster_fdd.core.discrepancy.measure import (
     Measured,
     noise_free,
@@ -28,7 +28,12 @@ from thruster_fdd.core.discrepancy.measure import (
     simulate_model,
 )
 from thruster_fdd.core.discrepancy.report import REPORT_FILES, check_out_dir, write_report
-from thruster_fdd.core.discrepancy.search import Result, run_workflow, start_config
+from thruster_fdd.core.discrepancy.search import (
+    Result,
+    base_changes,
+    run_workflow,
+    start_config,
+)
 from thruster_fdd.core.sim.config import Measurement, load_config, set_effect
 from thruster_fdd.core.sim.physics import simulate
 from thruster_fdd.core.sim.signals import make_signal
@@ -197,6 +202,25 @@ def test_mismatch_case_differs_from_its_start() -> None:
         assert float(np.max(np.abs(start_run.rpm - case.clean.rpm))) > 100.0
     with pytest.raises(ValueError, match="cannot be hidden"):
         make_mismatch_case(("esc_lag",), 0)
+
+
+def test_base_changes_offer_removing_the_start_drive_saturation() -> None:
+    """A start with ESC drive saturation (t200) is offered a base change without it (the
+    calibration keeps a structural term the start has); once removed, or for a start without
+    one (t100), it is not offered."""
+    t100, t200 = load_config("t100"), load_config("t200")
+
+    def changes(config, start) -> list:
+        # base_changes reads only the fitted configuration of the current model.
+        return base_changes(Fit(config, (), np.zeros(0), np.zeros(0), 0.0, None, 0), start, {})
+
+    [change] = [c for c in changes(t200, t200) if c.no_drive_saturation]
+    assert change.label == "base: no drive saturation"
+    assert not any(c.no_drive_saturation for c in changes(t100, t100))
+    lean = change.apply(t200)
+    assert lean.params.esc_v_sat_v == float("inf")
+    assert replace(lean.params, esc_v_sat_v=t200.params.esc_v_sat_v) == t200.params
+    assert not any(c.no_drive_saturation for c in changes(lean, t200))
 
 
 def test_start_config_drop() -> None:

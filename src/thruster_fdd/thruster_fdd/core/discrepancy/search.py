@@ -432,12 +432,15 @@ class BaseChange:
         The braking law it switches to (None: unchanged).
     second_stage : bool
         Whether it adds a second ESC stage (``SECOND_STAGE`` times the ``esc_lag`` to start).
+    no_drive_saturation : bool
+        Whether it removes the start's ESC drive saturation (``esc_v_sat_v`` to inf).
     """
 
     label: str
     ranges: dict[str, float]
     regen: bool | None = None
     second_stage: bool = False
+    no_drive_saturation: bool = False
 
     def apply(self, config: SimConfig) -> SimConfig:
         """``config`` with the change (its bounds aside)."""
@@ -447,15 +450,21 @@ class BaseChange:
         lag = config.effect("esc_lag")
         if self.second_stage and lag is not None:
             structure = replace(structure, esc_tau2_s=SECOND_STAGE * lag.tau_s)
-        return replace(config, structure=structure)
+        params = config.params
+        if self.no_drive_saturation:
+            params = replace(params, esc_v_sat_v=math.inf)
+        return replace(config, params=params, structure=structure)
 
 
 def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -> list[BaseChange]:
     """Base changes a round may try, each once: base parameters the calibration left on their
     ``BASE_RANGE`` bound re-fitted within ``WIDE_RANGE`` (a thruster of the same class outside
     the usual range: another propeller, wiring, rotor), a second ESC stage behind the
-    ``esc_lag`` (a second-order ESC), and the other braking law (coasting instead of
-    regeneration, or the reverse), a switch least squares cannot fit."""
+    ``esc_lag`` (a second-order ESC), the other braking law (coasting instead of
+    regeneration, or the reverse), a switch least squares cannot fit, and, where the start has
+    an ESC drive saturation, none: a structural term the start has is kept by the calibration
+    (``fit.STRUCTURE_FIT``), so a thruster without it was otherwise fitted with stand-ins (a
+    deadband on t200 mismatch cases whose drive saturation was switched off)."""
     out = []
     edge = _at_bound(current, config, ranges)
     if edge:
@@ -473,6 +482,10 @@ def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -
         regen = not config.structure.regen
         label = "base: regenerative braking" if regen else "base: coasting, no regeneration"
         out.append(BaseChange(label, dict(ranges), regen=regen))
+    if math.isfinite(config.params.esc_v_sat_v) and math.isfinite(
+        current.config.params.esc_v_sat_v
+    ):
+        out.append(BaseChange("base: no drive saturation", dict(ranges), no_drive_saturation=True))
     return out
 
 
