@@ -1,10 +1,13 @@
 """Benchmark: wall time of one full discrepancy run on a 10-minute trace at 10 Hz.
 
-The measured trace hides ``dead_time`` from the t100 model (``core.discrepancy.cases``); the
-run is the whole workflow of ``thruster-fdd discrepancy`` (calibration, candidate rounds,
-report files). Target: < 120 s on the 2-core machine.
+The measured trace hides ``dead_time`` from the t100 model (``core.discrepancy.cases``): by
+default a trace of the preset's own base physics (``make_case``), with ``--mismatch t100`` or
+``t200`` one whose base physics differ from the preset's (``make_mismatch_case``, seed
+``--seed``). The run is the whole workflow of ``thruster-fdd discrepancy`` (calibration,
+candidate rounds, superfluity tests, report files). Target: < 120 s on the 2-core machine.
 
-Usage: ``python bench/bench_discrepancy.py [--hidden dead_time ...] [--workers 2]``.
+Usage: ``python bench/bench_discrepancy.py [--hidden dead_time ...] [--mismatch t100]
+[--workers 2]``.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import resource
 import tempfile
 import time
 
-from thruster_fdd.core.discrepancy.cases import make_case
+from thruster_fdd.core.discrepancy.cases import make_case, make_mismatch_case
 from thruster_fdd.core.discrepancy.report import write_report
 from thruster_fdd.core.discrepancy.search import run_workflow
 
@@ -26,17 +29,28 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=600.0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--mismatch", choices=("t100", "t200"), help="base physics differ from this preset"
+    )
     args = parser.parse_args()
-    case = make_case(tuple(args.hidden), args.seed, duration_s=args.duration)
+    if args.mismatch:
+        case = make_mismatch_case(
+            tuple(args.hidden), args.seed, preset=args.mismatch, duration_s=args.duration
+        )
+    else:
+        case = make_case(tuple(args.hidden), args.seed, duration_s=args.duration)
+    base = (
+        f"base of {args.mismatch} changed: {', '.join(case.switches)}" if args.mismatch else "t100"
+    )
     load = os.getloadavg()[0]
     start = time.perf_counter()
     cpu0 = _cpu_s()
     result, data = run_workflow(case.trace, case.start, workers=args.workers, progress=False)
-    with tempfile.TemporaryDirectory() as out:
-        write_report(result, data, out)
+    with tempfile.TemporaryDirectory() as tmp:
+        write_report(result, data, f"{tmp}/report")
     wall = time.perf_counter() - start
     print(
-        f"{len(case.trace)} samples ({args.duration:.0f} s at 10 Hz), hidden "
+        f"{len(case.trace)} samples ({args.duration:.0f} s at 10 Hz), {base}; hidden "
         f"{', '.join(args.hidden) or 'nothing'}: named {', '.join(result.added) or 'nothing'} "
         f"in {wall:.1f} s wall, {_cpu_s() - cpu0:.1f} s CPU ({args.workers} worker(s); load "
         f"average {load:.2f} at start, {os.getloadavg()[0]:.2f} at end; target < 120 s wall)"

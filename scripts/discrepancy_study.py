@@ -1,20 +1,27 @@
-"""Many-seeds study of the discrepancy workflow on traces with hidden effects.
+"""Many-seeds study of the discrepancy workflow on traces with hidden effects, in two families.
 
-For every effect of the vocabulary (and effect pairs, and null traces with nothing hidden) and
-every seed, simulates a noisy "measured" t100 trace with the effect hidden from the model
-(``core.discrepancy.cases``), runs the workflow, and prints a Markdown table: detection rate,
-median / worst parameter error, gap shrink (held-out score), false-positive rate.
+- ``exact``: t100 traces whose base physics are the start preset's exactly (plus unit spread);
+  every effect of the vocabulary hidden in turn, three pairs, null traces with nothing hidden
+  (``core.discrepancy.cases.make_case``). Each case runs on the signal that excites its effect
+  (``cases.EXCITING``); null traces cycle through all case signals. Default 60 s traces.
+- ``t100`` / ``t200``: mismatch traces (``cases.make_mismatch_case``): the measured thruster
+  differs from the start preset by a random combination of structural switches outside the
+  effect vocabulary (``cases.MISMATCH_SWITCHES``), the start keeps only ``esc_lag``; single
+  and paired hidden effects, null traces, and starts holding an effect the thruster lacks
+  (``superfluous: NAME``). The ``mixed`` signal; default 600 s traces.
 
-Each case uses the command signal that excites its effect (``discrepancy_cases.EXCITING``:
-fast large steps for ``slew_rate_limit`` and ``current_limit``, low-speed ramps through zero for
-the friction terms, ``multilevel`` otherwise); null traces cycle through all case signals.
-Cases run in ``--workers`` processes, one run per process.
+Per case and seed it runs the workflow and records what was hidden, named (missing and
+superfluous), the parameter errors and the gap before and after; it prints one Markdown table
+per family: exact naming, parameter error, gap shrink, model error (against the unit's
+noise-free response), and the false-positive rate of the null traces with a one-sided 95 %
+upper bound. Runs go to ``--workers`` processes, one run each.
 
 Usage::
 
-    python scripts/discrepancy_study.py [--seeds 5] [--duration 120] [--workers 2] \
-        [--first-seed 100] [--cases current_limit dead_time+current_limit null] \
+    python scripts/discrepancy_study.py [--family exact t100 t200] [--seeds 5] \
+        [--first-seed 100] [--duration S] [--workers 2] [--cases null deadband ...] \
         [--json runs.jsonl]
+    python scripts/discrepancy_study.py --table runs.jsonl
 """
 
 from __future__ import annotations
@@ -32,7 +39,17 @@ import numpy as np
 from scipy.stats import beta
 from tqdm import tqdm
 
-from thruster_fdd.core.discrepancy.cases import PLAUSIBLE, SIGNALS, make_case
+from thruster_fdd.core.discrepancy.cases import (
+    MISMATCH_DURATION_S,
+    MISMATCH_HIDDEN,
+    MISMATCH_PAIRS,
+    PLAUSIBLE,
+    SIGNALS,
+    SUPERFLUOUS,
+    Case,
+    make_case,
+    make_mismatch_case,
+)
 from thruster_fdd.core.discrepancy.measure import Measured, simulate_model
 from thruster_fdd.core.discrepancy.search import run_workflow
 from thruster_fdd.core.sim.config import SimConfig
@@ -43,6 +60,15 @@ PAIRS = (
     ("deadband", "esc_lag"),
     ("coulomb_friction", "voltage_sag"),
 )
+"""Hidden pairs of the exact-base family."""
+
+
+FAMILIES = ("exact", "t100", "t200")
+"""``exact``: base physics of the start preset (t100); ``t100`` / ``t200``: mismatch cases
+starting from that preset."""
+
+
+EXACT_DURATION_S = 60.0
 
 
 def _model_error(config: SimConfig, clean: Trace, data: Measured) -> float:
@@ -63,11 +89,21 @@ def _model_error(config: SimConfig, clean: Trace, data: Measured) -> float:
     )
 
 
-def one(job: tuple[tuple[str, ...], int, float]) -> dict:
+def make_job_case(family: str, hidden: tuple[str, ...], superfluous: tuple[str, ...],
+                  seed: int, duration: float) -> Case:  # fmt: skip
+    """The case of one study run."""
+    if family == "exact":
+        signal = None if hidden else SIGNALS[seed % len(SIGNALS)]
+        return make_case(hidden, seed, duration_s=duration, signal=signal)
+    return make_mismatch_case(
+        hidden, seed, preset=family, superfluous=superfluous, duration_s=duration
+    )
+
+
+def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
     """Run one case; return what was hidden, what was named, errors and gap shrink."""
-    hidden, seed, duration = job
-    signal = None if hidden else SIGNALS[seed % len(SIGNALS)]
-    case = make_case(hidden, seed, duration_s=duration, signal=signal)
+    family, hidden, superfluous, seed, duration = job
+    case = make_job_case(family, hidden, superfluous, seed, duration)
     t0 = time.perf_counter()
     result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
     rep = result.report()
@@ -78,10 +114,14 @@ def one(job: tuple[tuple[str, ...], int, float]) -> dict:
         if found is not None:
             errors[name] = max(abs(found["params"][p] / v - 1.0) for p, v in params.items())
     return {
+        "family": family,
         "hidden": list(hidden),
+        "superfluous": list(case.superfluous),
+        "switches": case.switches,
         "seed": seed,
         "signal": case.signal,
         "named": list(result.added),
+        "named_superfluous": [m["name"] for m in rep.get("superfluous_effects", [])],
         "verdict": result.verdict,
         "param_error": errors,
         "score_before": result.start.gap.score,
@@ -101,60 +141,127 @@ def upper_bound(failures: int, runs: int, confidence: float = 0.95) -> float:
     return float(beta.ppf(confidence, failures + 1, runs - failures))
 
 
-def table(rows: list[dict]) -> str:
-    """Markdown table per hidden set.
+def exact(row: dict) -> bool:
+    """Named exactly what was hidden and what was superfluous, nothing else."""
+    return sorted(row["named"]) == sorted(row["hidden"]) and sorted(
+        row.get("named_superfluous", [])
+    ) == sorted(row.get("superfluous", []))
 
-    "shrink >= 1/2": runs whose held-out score at least halved. "excess shrink >= 1/2": runs
-    whose excess over noise (score - 1, the part a model can explain) at least halved; near the
-    noise floor (friction) the score itself cannot halve even when the right effect is named.
-    "model error": the held-out mean squared error of rpm and current in noise-variance units,
-    but against the unit's noise-free response (``Case.clean``) instead of the noisy
-    measurement, so it has no noise floor; "halved": runs where it at least halved.
-    """
-    out = [
-        "| hidden | runs | detected (exactly) | param error median / max | within 20 % "
-        "| score before -> after (median) | shrink >= 1/2 | excess shrink >= 1/2 "
-        "| model error before -> after (median) | model error halved |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    groups: dict[str, list[dict]] = {}
-    for r in rows:
-        groups.setdefault("+".join(r["hidden"]) or "(nothing: null)", []).append(r)
-    for key, rs in groups.items():
-        exact = sum(sorted(r["named"]) == sorted(r["hidden"]) for r in rs)
-        errs = [e for r in rs for e in r["param_error"].values()]
-        err = f"{100 * statistics.median(errs):.1f} % / {100 * max(errs):.1f} %" if errs else "-"
-        within = f"{sum(e <= 0.2 for e in errs)}/{len(errs)}" if errs else "-"
-        sb = statistics.median(r["score_before"] for r in rs)
-        sa = statistics.median(r["score_after"] for r in rs)
-        shrink = excess = model = model_halved = "-"
-        if rs[0]["hidden"]:
-            shrink = f"{sum(r['score_after'] <= 0.5 * r['score_before'] for r in rs)}/{len(rs)}"
-            halved = sum(r["score_after"] - 1.0 <= 0.5 * (r["score_before"] - 1.0) for r in rs)
-            excess = f"{halved}/{len(rs)}"
-        if rs[0]["hidden"] and "model_error_before" in rs[0]:  # absent in older JSON files
-            mb = statistics.median(r["model_error_before"] for r in rs)
-            ma = statistics.median(r["model_error_after"] for r in rs)
-            model = f"{mb:.2f} -> {ma:.3f}"
-            there = sum(r["model_error_after"] <= 0.5 * r["model_error_before"] for r in rs)
-            model_halved = f"{there}/{len(rs)}"
+
+def _key(row: dict) -> str:
+    if row.get("superfluous"):
+        return "superfluous: " + "+".join(row["superfluous"])
+    return "+".join(row["hidden"]) or "(nothing: null)"
+
+
+def _summary(rows: list[dict]) -> list[str]:
+    """Totals of one family: singles, pairs, nulls (false positives), superfluous."""
+    out = []
+    singles = [r for r in rows if len(r["hidden"]) == 1 and not r.get("superfluous")]
+    pairs = [r for r in rows if len(r["hidden"]) == 2]
+    nulls = [r for r in rows if not r["hidden"] and not r.get("superfluous")]
+    extra = [r for r in rows if r.get("superfluous")]
+    if singles or pairs:
+        both = singles + pairs
+        errs = [e for r in both for e in r["param_error"].values()]
+        halved = sum(r["model_error_after"] <= 0.5 * r["model_error_before"] for r in both)
         out.append(
-            f"| {key} | {len(rs)} | {exact}/{len(rs)} | {err} | {within} | {sb:.1f} -> {sa:.2f} "
-            f"| {shrink} | {excess} | {model} | {model_halved} |"
+            f"Named exactly: singles {sum(map(exact, singles))}/{len(singles)}, pairs "
+            f"{sum(map(exact, pairs))}/{len(pairs)} (together "
+            f"{100 * sum(map(exact, both)) / len(both):.0f} %); parameters within 20 %: "
+            f"{sum(e <= 0.2 for e in errs)}/{len(errs)}; model error halved {halved}/{len(both)}."
         )
-    nulls = [r for r in rows if not r["hidden"]]
     if nulls:
-        fp = sum(bool(r["named"]) for r in nulls)
-        out.append("")
+        fp = sum(bool(r["named"] or r.get("named_superfluous")) for r in nulls)
         out.append(
-            f"False-positive rate (null traces naming any effect): {fp}/{len(nulls)} "
-            f"(one-sided 95 % upper bound {100 * upper_bound(fp, len(nulls)):.1f} %)."
+            f"False-positive rate (null traces naming anything): {fp}/{len(nulls)} = "
+            f"{100 * fp / len(nulls):.1f} % (one-sided 95 % upper bound "
+            f"{100 * upper_bound(fp, len(nulls)):.1f} %)."
         )
+    if extra:
+        found = sum(sorted(r.get("named_superfluous", [])) == r["superfluous"] for r in extra)
+        shrank = sum(r["score_after"] < r["score_before"] for r in extra)
+        out.append(
+            f"Superfluous effects reported: {found}/{len(extra)} (exactly: "
+            f"{sum(map(exact, extra))}); held-out score lower after: {shrank}/{len(extra)}."
+        )
+    return out
+
+
+def table(rows: list[dict]) -> str:
+    """Markdown table per family and case.
+
+    "named exactly": the named missing effects equal the hidden ones and the named superfluous
+    effects the superfluous ones. "shrink >= 1/2": runs whose held-out score at least halved.
+    "excess shrink >= 1/2": runs whose excess over noise (score - 1) at least halved.
+    "model error": the held-out mean squared error of rpm and current in noise-variance units,
+    against the unit's noise-free response (``Case.clean``), so it has no noise floor;
+    "halved": runs where it at least halved.
+    """
+    out = []
+    by_family: dict[str, list[dict]] = {}
+    for r in rows:
+        by_family.setdefault(r.get("family", "exact"), []).append(r)
+    for family, frows in by_family.items():
+        out += [
+            f"**{family}**",
+            "",
+            "| case | runs | named exactly | param error median / max | within 20 % "
+            "| score before -> after (median) | shrink >= 1/2 | excess shrink >= 1/2 "
+            "| model error before -> after (median) | model error halved |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        groups: dict[str, list[dict]] = {}
+        for r in frows:
+            groups.setdefault(_key(r), []).append(r)
+        for key, rs in groups.items():
+            errs = [e for r in rs for e in r["param_error"].values()]
+            err = (
+                f"{100 * statistics.median(errs):.1f} % / {100 * max(errs):.1f} %" if errs else "-"
+            )
+            within = f"{sum(e <= 0.2 for e in errs)}/{len(errs)}" if errs else "-"
+            sb = statistics.median(r["score_before"] for r in rs)
+            sa = statistics.median(r["score_after"] for r in rs)
+            shrink = excess = model = model_halved = "-"
+            if rs[0]["hidden"] or rs[0].get("superfluous"):
+                shrink = f"{sum(r['score_after'] <= 0.5 * r['score_before'] for r in rs)}/{len(rs)}"
+                halved = sum(r["score_after"] - 1.0 <= 0.5 * (r["score_before"] - 1.0) for r in rs)
+                excess = f"{halved}/{len(rs)}"
+                mb = statistics.median(r["model_error_before"] for r in rs)
+                ma = statistics.median(r["model_error_after"] for r in rs)
+                model = f"{mb:.2f} -> {ma:.3f}"
+                there = sum(r["model_error_after"] <= 0.5 * r["model_error_before"] for r in rs)
+                model_halved = f"{there}/{len(rs)}"
+            out.append(
+                f"| {key} | {len(rs)} | {sum(map(exact, rs))}/{len(rs)} | {err} | {within} "
+                f"| {sb:.1f} -> {sa:.2f} | {shrink} | {excess} | {model} | {model_halved} |"
+            )
+        out += ["", *_summary(frows), ""]
     return "\n".join(out)
 
 
+def _wanted(family: str) -> list[tuple[tuple[str, ...], tuple[str, ...]]]:
+    """(hidden, superfluous) of every case kind of ``family``; () () is the null trace."""
+    if family == "exact":
+        kinds = [((name,), ()) for name in PLAUSIBLE] + [(p, ()) for p in PAIRS]
+    else:
+        kinds = [((name,), ()) for name in MISMATCH_HIDDEN] + [(p, ()) for p in MISMATCH_PAIRS]
+        kinds += [((), (name,)) for name in SUPERFLUOUS]
+    return [*kinds, ((), ())]
+
+
+def _case_name(hidden: tuple[str, ...], superfluous: tuple[str, ...]) -> str:
+    if superfluous:
+        return "superfluous:" + "+".join(superfluous)
+    return "+".join(hidden) or "null"
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--family", nargs="+", choices=FAMILIES, default=list(FAMILIES),
+                        help="case families (default: all three)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=5, help="seeds per case (default 5)")
     parser.add_argument(
         "--first-seed",
@@ -162,36 +269,39 @@ def main(argv: list[str] | None = None) -> int:
         default=100,
         help="first seed (default 100; null traces use first-seed + 0 .. 2 x seeds - 1)",
     )
-    parser.add_argument(
-        "--duration", type=float, default=120.0, help="trace length, s (default 120)"
-    )
+    parser.add_argument("--duration", type=float,
+                        help=f"trace length, s (default {EXACT_DURATION_S:g} for exact, "
+                        f"{MISMATCH_DURATION_S:g} for the mismatch families)")  # fmt: skip
     parser.add_argument("--workers", type=int, default=2, help="processes (default 2)")
-    parser.add_argument("--json", type=Path, help="also write every run as JSON lines")
+    parser.add_argument("--json", type=Path, help="also append every run as a JSON line")
     parser.add_argument("--table", type=Path, help="only print the table of such a JSON file")
     parser.add_argument(
         "--cases",
         nargs="+",
         metavar="CASE",
-        help="run only these cases: an effect, a pair as EFFECT+EFFECT (of the study's pairs) "
-        "or 'null' (default: every effect, every pair and two null traces per seed)",
+        help="run only these cases: an effect, a pair as EFFECT+EFFECT (of the family's "
+        "pairs), 'null', or 'superfluous:EFFECT' (mismatch families)",
     )
     args = parser.parse_args(argv)
     if args.table:
         print(table([json.loads(line) for line in args.table.read_text().splitlines()]))
         return 0
-    wanted = [*[(name,) for name in PLAUSIBLE], *PAIRS, ()]
-    if args.cases:
-        by_name = {"+".join(h) or "null": h for h in wanted}
-        unknown = [c for c in args.cases if c not in by_name]
-        if unknown:
-            parser.error(f"unknown case(s) {unknown}; expected some of {', '.join(by_name)}")
-        wanted = [by_name[c] for c in args.cases]
-    cases = []
-    for s in range(args.seeds):  # seed-major: a study stopped early still covers every case
-        cases += [(hidden, s) for hidden in wanted if hidden]
-        if () in wanted:
-            cases += [((), 2 * s), ((), 2 * s + 1)]
-    jobs = [(hidden, args.first_seed + seed, args.duration) for hidden, seed in cases]
+    jobs = []
+    for family in args.family:
+        wanted = _wanted(family)
+        if args.cases:
+            by_name = {_case_name(*w): w for w in wanted}
+            wanted = [by_name[c] for c in args.cases if c in by_name]
+            if not wanted:
+                parser.error(f"no case of {args.cases} in family {family}; known: {list(by_name)}")
+        duration = args.duration or (EXACT_DURATION_S if family == "exact" else MISMATCH_DURATION_S)
+        for s in range(args.seeds):  # seed-major: a study stopped early still covers every case
+            for hidden, superfluous in wanted:
+                if hidden or superfluous:
+                    jobs.append((family, hidden, superfluous, args.first_seed + s, duration))
+                else:
+                    for k in (2 * s, 2 * s + 1):
+                        jobs.append((family, (), (), args.first_seed + k, duration))
     rows = []
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
@@ -203,8 +313,8 @@ def main(argv: list[str] | None = None) -> int:
                     f.write(json.dumps(row) + "\n")
     print(table(rows))
     print(
-        f"\n{len(rows)} runs, {args.duration:.0f} s traces, {time.perf_counter() - t0:.0f} s wall "
-        f"in {args.workers} processes (load average at start {load:.2f})."
+        f"{len(rows)} runs, {time.perf_counter() - t0:.0f} s wall in {args.workers} processes "
+        f"(load average at start {load:.2f})."
     )
     return 0
 

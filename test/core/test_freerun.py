@@ -8,7 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from thruster_fdd.core.sim.config import Measurement, SimConfig, load_config, set_effect
+from thruster_fdd.core.sim.config import (
+    Measurement,
+    SimConfig,
+    Structure,
+    load_config,
+    set_effect,
+)
 from thruster_fdd.core.sim.effects import make_effect
 from thruster_fdd.core.sim.freerun import free_run
 from thruster_fdd.core.sim.physics import ThrusterSimulator
@@ -29,7 +35,8 @@ RANGES: dict[str, tuple[str, float, float]] = {
 
 
 def _random_config(rng: np.random.Generator, *, delayed_and_limited: bool) -> SimConfig:
-    """t100 with every base parameter scaled, each effect on or off at random values."""
+    """t100 with every base parameter scaled, each effect and each structural switch on or off
+    at random values."""
     base = load_config("t100")
     p = base.params
     params = replace(
@@ -51,7 +58,14 @@ def _random_config(rng: np.random.Generator, *, delayed_and_limited: bool) -> Si
             if forced and name == "current_limit":
                 value = rng.uniform(3.0, 5.0)  # binds at |command| well under 1
             config = set_effect(config, make_effect(name, {attr: value}))
-    return config
+    # A child generator: the draws of the configuration and history above stay as they were.
+    srng = rng.spawn(1)[0]
+    structure = Structure(
+        esc_tau2_s=float(srng.choice([0.0, srng.uniform(0.02, 0.4)])),
+        i_idle_per_krpm_a=float(srng.choice([0.0, srng.uniform(0.02, 0.3)])),
+        regen=bool(srng.random() < 0.5),
+    )
+    return replace(config, structure=structure)
 
 
 def _random_history(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -120,16 +134,22 @@ def test_free_run_equals_simulator(seed: int) -> None:
 
 
 def test_free_run_sees_small_differences() -> None:
-    """The comparison would fail if the kernel differed: a 1e-6 change of one parameter or of
-    the dead time is far outside the tolerance."""
+    """The comparison would fail if the kernel differed: a 1e-6 change of one parameter, of
+    the dead time or of a structural value, or the other braking law, is far outside the
+    tolerance."""
     rng = np.random.default_rng(7)
     config = _random_config(rng, delayed_and_limited=True)
+    config = replace(config, structure=Structure(0.1, 0.1, regen=False))
     t, command, supply = _random_history(rng, 400)
     want = _reference(config, t, command, supply)
     delay = config.effect("dead_time").delay_s
+    s = config.structure
     changed = (
         replace(config, params=replace(config.params, k_e=config.params.k_e * (1 + 1e-6))),
         set_effect(config, make_effect("dead_time", {"delay_s": delay * (1 + 1e-6)})),
+        replace(config, structure=replace(s, esc_tau2_s=s.esc_tau2_s * (1 + 1e-6))),
+        replace(config, structure=replace(s, i_idle_per_krpm_a=s.i_idle_per_krpm_a * (1 + 1e-6))),
+        replace(config, structure=replace(s, regen=True)),
     )
     for other in changed:
         with pytest.raises(AssertionError):

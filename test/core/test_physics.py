@@ -14,6 +14,7 @@ from thruster_fdd.core.sim import physics
 from thruster_fdd.core.sim.config import (
     Measurement,
     SimConfig,
+    Structure,
     add_effect,
     dump_config,
     load_config,
@@ -266,6 +267,66 @@ def test_config_round_trip(tmp_path: Path) -> None:
     changed = add_effect(remove_effect(load_config("t200"), "esc_lag"), EscLag(tau_s=0.3))
     dump_config(changed, tmp_path / "x.yaml")
     assert load_config(tmp_path / "x.yaml") == changed
+
+
+def test_structure_round_trip_and_checks(tmp_path: Path) -> None:
+    """``structure`` loads from YAML, round-trips, is left out of a dump at its defaults and
+    refuses unknown keys and bad values."""
+    structure = Structure(esc_tau2_s=0.1, i_idle_per_krpm_a=0.05, regen=False)
+    config = dataclasses.replace(load_config("t100"), structure=structure)
+    dump_config(config, tmp_path / "s.yaml")
+    assert load_config(tmp_path / "s.yaml") == config
+    assert "structure" in (tmp_path / "s.yaml").read_text()
+    dump_config(load_config("t100"), tmp_path / "t.yaml")
+    assert "structure" not in (tmp_path / "t.yaml").read_text()
+    text = (tmp_path / "s.yaml").read_text()
+    (tmp_path / "bad.yaml").write_text(text.replace("regen: false", "regen: maybe"))
+    with pytest.raises(ValueError, match="regen"):
+        load_config(tmp_path / "bad.yaml")
+    (tmp_path / "bad.yaml").write_text(text.replace("regen: false", "esc_order: 2"))
+    with pytest.raises(ValueError, match="esc_order"):
+        load_config(tmp_path / "bad.yaml")
+    with pytest.raises(ValueError, match=">= 0"):
+        Structure(esc_tau2_s=-0.1)
+
+
+def test_second_esc_stage_slows_the_start_not_the_end() -> None:
+    base = remove_effect(clean("t100"), "dead_time")
+    second = dataclasses.replace(base, structure=Structure(esc_tau2_s=0.3))
+    t = np.arange(100) / 10.0
+    one, two = (simulate(c, t, np.full(100, 0.6)) for c in (base, second))
+    assert two.rpm[3] < 0.6 * one.rpm[3]  # 0.3 s after the step
+    assert two.rpm[-1] == pytest.approx(one.rpm[-1], rel=1e-3)
+
+
+def test_idle_current_grows_with_speed() -> None:
+    base = remove_effect(clean("t100"), "voltage_sag")  # a sag would couple current to speed
+    lossy = dataclasses.replace(base, structure=Structure(i_idle_per_krpm_a=0.2))
+    u = np.array([0.0, 0.5, 1.0])
+    rpm0, cur0 = steady_state(base, u, 15.0)
+    rpm1, cur1 = steady_state(lossy, u, 15.0)
+    np.testing.assert_allclose(rpm1, rpm0)
+    np.testing.assert_allclose(cur1 - cur0, 0.2 * np.abs(rpm0) / 1000.0, rtol=1e-9)
+    trace = simulate(lossy, np.arange(200) / 10.0, np.full(200, 1.0))
+    assert trace.current[-1] == pytest.approx(cur1[2], rel=5e-3)
+
+
+def test_without_regeneration_the_rotor_coasts() -> None:
+    """Regenerative (reference): a fast command drop brakes the rotor under drive and pushes
+    current back to the bus. Without it the bus current stays at idle and the rotor coasts
+    down on its propeller load, more slowly."""
+    base = remove_effect(remove_effect(clean("t100"), "dead_time"), "esc_lag")
+    base = set_effect(base, make_effect("esc_lag", {"tau_s": 0.05}))
+    coast = dataclasses.replace(base, structure=Structure(regen=False))
+    t = np.arange(120) / 20.0
+    u = np.where(t < 3.0, 1.0, 0.3)
+    regen, free = (simulate(c, t, u) for c in (base, coast))
+    after = t > 3.0
+    assert regen.current[after].min() < -0.2
+    assert free.current[after].min() >= base.params.i_idle_a - 1e-12
+    k = int(np.argmax(t >= 3.2))
+    assert free.rpm[k] > regen.rpm[k] + 100.0
+    assert free.rpm[-1] == pytest.approx(regen.rpm[-1], rel=1e-3)
 
 
 def test_effect_registry_and_helpers() -> None:

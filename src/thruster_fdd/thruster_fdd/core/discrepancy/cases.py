@@ -1,13 +1,20 @@
 """Synthetic measured traces with hidden effects, for tests, the study and the benchmark.
 
 A case hides effects from the model: the "measured" trace is simulated (with unit spread,
-noise, quantisation and outliers) from the t100 preset with the hidden effects set to random
-plausible values; the model starts from the t100 preset without them.
+noise, quantisation and outliers) with the hidden effects set to random plausible values, and
+the model starts without them. Two families:
+
+- exact base (``make_case``): the measured unit is the t100 preset's (plus spread); only the
+  hidden effects differ from the start;
+- mismatch (``make_mismatch_case``): the measured thruster's base physics also differ from the
+  start preset (``t100`` or ``t200``) by a random combination of structural switches outside
+  the effect vocabulary (``MISMATCH_SWITCHES``), and the start may hold an effect the thruster
+  lacks (superfluous).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,7 +28,9 @@ from thruster_fdd.core.sim.config import (
 )
 from thruster_fdd.core.sim.effects import make_effect
 from thruster_fdd.core.sim.physics import simulate
+from thruster_fdd.core.sim.plant import RAD_S_TO_RPM
 from thruster_fdd.core.sim.signals import make_signal
+from thruster_fdd.core.sim.steady import steady_state
 from thruster_fdd.core.traces.data import Trace
 
 PLAUSIBLE: dict[str, tuple[str, float, float]] = {
@@ -74,11 +83,16 @@ class Case:
     hidden : dict of str to dict of str to float
         Hidden effect -> its parameters in the simulated unit (after spread).
     signal : str
-        The command signal (one of ``SIGNALS``).
+        The command signal (one of ``SIGNALS``, or ``mixed``).
     clean : Trace
         The same unit's response to the same command without measurement noise, outliers,
         quantisation or reporting floor: what a perfect model would output. Measured against
         it, a model's error has no noise floor (the study's "model error" column).
+    superfluous : tuple of str
+        Effects the start holds and the measured thruster lacks (mismatch family).
+    switches : dict of str to str
+        Structural switches of the measured thruster that differ from the start preset, with
+        their values (mismatch family; empty for the exact base).
     """
 
     trace: Trace
@@ -86,6 +100,8 @@ class Case:
     hidden: dict[str, dict[str, float]]
     signal: str
     clean: Trace
+    superfluous: tuple[str, ...] = ()
+    switches: dict[str, str] = field(default_factory=dict)
 
 
 ABSENT: dict[str, tuple[str, ...]] = {
@@ -104,14 +120,32 @@ one friction term from a model that has none (the t100 preset's other term is 1e
 0.002 N m, removed from the truth too)."""
 
 
+MIXED = ("steps", "chirp", "multilevel", "reversals", "lowspeed")
+"""Segments of the ``mixed`` signal, equal lengths in this order: the paper's 0.25 steps, a
+0.01-0.1 Hz chirp, then the three ``SIGNALS``, so every effect is excited in every case."""
+
+
 def case_signal(
     spec: str, duration_s: float, rate_hz: float, seed: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Command of a case: one of ``SIGNALS`` (times from 0 s, command in -1..1)."""
+    """Command of a case: one of ``SIGNALS`` or ``mixed`` (times from 0 s, command in -1..1)."""
     if spec == "multilevel":
         return make_signal("multilevel", duration_s, rate_hz, seed=seed)
+    if spec == "mixed":
+        n = max(len(MIXED), round(duration_s * rate_hz))
+        bounds = np.linspace(0, n, len(MIXED) + 1).round().astype(int)
+        parts = []
+        for k, part in enumerate(MIXED):
+            length = int(bounds[k + 1] - bounds[k])
+            if part in ("steps", "chirp"):
+                parts.append(make_signal(part, length / rate_hz, rate_hz)[1][:length])
+            else:
+                parts.append(case_signal(part, length / rate_hz, rate_hz, seed + k)[1][:length])
+        return np.arange(n) / rate_hz, np.concatenate(parts)
     if spec not in SIGNALS:
-        raise ValueError(f"unknown case signal {spec!r}; expected one of {', '.join(SIGNALS)}")
+        raise ValueError(
+            f"unknown case signal {spec!r}; expected one of {', '.join(SIGNALS)}, mixed"
+        )
     n = max(1, round(duration_s * rate_hz))
     t = np.arange(n) / rate_hz
     rng = np.random.default_rng([seed, 0x5161])
@@ -190,3 +224,211 @@ def make_case(
             raise ValueError(f"hidden effect {name!r} missing from the simulated unit")
         values[name] = effect.params()
     return Case(trace=trace, start=start, hidden=values, signal=signal, clean=clean)
+
+
+MISMATCH_SWITCHES = (
+    "asymmetric_load",
+    "drive_saturation",
+    "winding_loss",
+    "idle_law",
+    "second_order_esc",
+    "base_out_of_bounds",
+    "coarse_rpm_sensor",
+    "no_regen",
+)
+"""Structural differences of a mismatch case's thruster from its start preset, each drawn on
+with probability 1/2 (``draw_mismatch``): propeller load asymmetric between forward and reverse
+(``k_q_reverse_ratio`` x 0.7-0.85 or 1.15-1.35); ESC drive saturation toggled (``esc_v_sat_v``
+45-120 V where the preset has none, none where it has one); a speed-dependent winding loss
+(``r_speed_ohm_s`` giving +20-60 % of ``r_ohm`` at 400 rad/s where the preset has none, else
+its value x 0.6-0.8 or 1.25-1.6: switching it off would double the t200's current); idle current
+growing with speed (0.03-0.15 A per 1000 rpm); a second ESC stage (0.05-0.2 s); one of
+``r_ohm``, ``k_q``, ``inertia`` outside the calibration's factor-2 bounds (x or / 2.2-3); an rpm
+sensor with a reporting floor of 350-700 rpm and 20-100 rpm quantisation; coasting instead of
+regenerative braking."""
+
+
+MISMATCH_HIDDEN = tuple(n for n in PLAUSIBLE if n != "esc_lag")
+"""Effects a mismatch case may hide: the start keeps ``esc_lag`` (as in the issue's trial:
+``--start t100``, every effect but ``esc_lag`` dropped)."""
+
+
+MISMATCH_PAIRS = (
+    ("dead_time", "current_limit"),
+    ("deadband", "voltage_sag"),
+    ("coulomb_friction", "slew_rate_limit"),
+)
+"""Hidden pairs of the mismatch study."""
+
+
+SUPERFLUOUS = ("dead_time", "deadband")
+"""Effects a mismatch case's start may hold although the thruster lacks them."""
+
+
+SUPERFLUOUS_VALUES: dict[str, tuple[str, float]] = {
+    "dead_time": ("delay_s", 0.55),
+    "deadband": ("width", 0.0625),
+}
+"""Value a superfluous effect has in the start when its preset lacks it (the t100 values)."""
+
+
+MISMATCH_DURATION_S = 600.0
+"""Default length of a mismatch case, s (the issue's trial: 600 s at 10 Hz)."""
+
+
+def _full_command(config: SimConfig) -> tuple[float, float, float]:
+    """Steady full-command speed (rad/s), propeller torque (N m) and bus current (A) at 15 V."""
+    rpm, current = steady_state(replace(config, spread=0.0), np.array([1.0]), 15.0)
+    w = float(rpm[0]) / RAD_S_TO_RPM
+    return w, config.params.k_q * w * w, float(current[0])
+
+
+def plausible_ranges(config: SimConfig) -> dict[str, tuple[str, float, float]]:
+    """``PLAUSIBLE`` (t100 ranges) scaled to the thruster of ``config``.
+
+    Friction torques scale with the full-command propeller torque (viscous also with the
+    inverse speed), the supply resistance with the inverse and the current limit with the
+    full-command current (all at 15 V); times, widths and duty rates stay.
+    """
+    w0, torque0, current0 = _full_command(load_config("t100"))
+    w1, torque1, current1 = _full_command(config)
+    scale = {
+        "coulomb_friction": torque1 / torque0,
+        "viscous_friction": (torque1 / w1) / (torque0 / w0),
+        "voltage_sag": current0 / current1,
+        "current_limit": current1 / current0,
+    }
+    return {
+        name: (attr, lo * scale.get(name, 1.0), hi * scale.get(name, 1.0))
+        for name, (attr, lo, hi) in PLAUSIBLE.items()
+    }
+
+
+def draw_mismatch(base: SimConfig, rng: np.random.Generator) -> tuple[SimConfig, dict[str, str]]:
+    """Apply a random combination of ``MISMATCH_SWITCHES`` to ``base``.
+
+    Returns
+    -------
+    (SimConfig, dict of str to str)
+        The changed configuration and, per switch drawn on, a description of its value.
+    """
+    p, m = base.params, base.measurement
+    params: dict[str, float] = {}
+    structure: dict[str, float | bool] = {}
+    measurement: dict[str, float] = {}
+    on: dict[str, str] = {}
+    for switch in MISMATCH_SWITCHES:
+        draw_on = rng.random() < 0.5
+        u1, u2, u3 = rng.random(3)  # drawn always, so one switch does not shift the others
+        if not draw_on:
+            continue
+        if switch == "asymmetric_load":
+            factor = 0.7 + 0.15 * u2 if u1 < 0.5 else 1.15 + 0.2 * u2
+            params["k_q_reverse_ratio"] = p.k_q_reverse_ratio * factor
+            on[switch] = f"k_q_reverse_ratio x {factor:.3f}"
+        elif switch == "drive_saturation":
+            value = float("inf") if np.isfinite(p.esc_v_sat_v) else 45.0 + 75.0 * u1
+            params["esc_v_sat_v"] = value
+            on[switch] = f"esc_v_sat_v {value:.1f} V"
+        elif switch == "winding_loss":
+            if p.r_speed_ohm_s > 0.0:
+                value = p.r_speed_ohm_s * (0.6 + 0.2 * u2 if u1 < 0.5 else 1.25 + 0.35 * u2)
+            else:
+                value = (0.2 + 0.4 * u1) * p.r_ohm / 400.0
+            params["r_speed_ohm_s"] = value
+            on[switch] = f"r_speed_ohm_s {value:.3g} ohm s/rad"
+        elif switch == "idle_law":
+            structure["i_idle_per_krpm_a"] = 0.03 + 0.12 * u1
+            on[switch] = f"i_idle_per_krpm_a {structure['i_idle_per_krpm_a']:.3f} A"
+        elif switch == "second_order_esc":
+            structure["esc_tau2_s"] = 0.05 + 0.15 * u1
+            on[switch] = f"esc_tau2_s {structure['esc_tau2_s']:.3f} s"
+        elif switch == "base_out_of_bounds":
+            name = ("r_ohm", "k_q", "inertia")[min(int(u1 * 3), 2)]
+            factor = (2.2 + 0.8 * u2) ** (1.0 if u3 < 0.5 else -1.0)
+            params[name] = getattr(p, name) * factor
+            on[switch] = f"{name} x {factor:.3f}"
+        elif switch == "coarse_rpm_sensor":
+            measurement["rpm_floor"] = 350.0 + 350.0 * u1
+            measurement["rpm_step"] = 20.0 + 80.0 * u2
+            on[switch] = (
+                f"rpm floor {measurement['rpm_floor']:.0f}, step {measurement['rpm_step']:.0f}"
+            )
+        elif switch == "no_regen":
+            structure["regen"] = False
+            on[switch] = "coasts instead of regenerating"
+    config = replace(
+        base,
+        params=replace(p, **params),
+        structure=replace(base.structure, **structure),
+        measurement=replace(m, **measurement),
+    )
+    return config, on
+
+
+def make_mismatch_case(
+    hidden: tuple[str, ...],
+    seed: int,
+    *,
+    preset: str = "t100",
+    superfluous: tuple[str, ...] = (),
+    duration_s: float = MISMATCH_DURATION_S,
+    rate_hz: float = 10.0,
+) -> Case:
+    """Build a mismatch case: base physics differ from the start preset, effects hidden.
+
+    The measured thruster is ``preset`` with ``esc_lag`` as its only effect besides the hidden
+    ones (values from ``plausible_ranges`` of the changed thruster), changed by
+    ``draw_mismatch`` and drawn with the preset's unit spread and noise; the
+    start is ``preset`` with ``esc_lag`` only, plus the ``superfluous`` effects (at the
+    preset's value, else ``SUPERFLUOUS_VALUES``). Driven by the ``mixed`` signal.
+
+    Parameters
+    ----------
+    hidden : tuple of str
+        Effects hidden from the start (``MISMATCH_HIDDEN``); may be empty (a null case).
+    seed : int
+        Seed of the switches, the hidden values, the unit, the noise and the command.
+    preset : str
+        ``t100`` or ``t200``.
+    superfluous : tuple of str
+        Effects of ``SUPERFLUOUS`` the start holds and the thruster lacks.
+    duration_s, rate_hz : float
+        Trace length (s) and sample rate (Hz).
+    """
+    unknown = [n for n in hidden if n not in MISMATCH_HIDDEN]
+    unknown += [n for n in superfluous if n not in SUPERFLUOUS or n in hidden]
+    if unknown:
+        raise ValueError(f"effect(s) {unknown} cannot be hidden or superfluous here")
+    source = load_config(preset)
+    lag = source.effect("esc_lag")
+    if lag is None:
+        raise ValueError(f"preset {preset!r} has no esc_lag")
+    base = replace(source, effects=(lag,))
+    rng = np.random.default_rng([seed, 0x3157])
+    truth, switches = draw_mismatch(base, rng)
+    # Scaled to the measured thruster itself, so a current limit binds and a friction torque
+    # weighs the same share of its load whatever the switches did to its current and speed.
+    ranges = plausible_ranges(truth)
+    for name in hidden:
+        attr, lo, hi = ranges[name]
+        truth = set_effect(truth, make_effect(name, {attr: float(rng.uniform(lo, hi))}))
+    start = base
+    for name in superfluous:
+        attr, value = SUPERFLUOUS_VALUES[name]
+        effect = source.effect(name) or make_effect(name, {attr: value})
+        start = set_effect(start, effect)
+    t, command = case_signal("mixed", duration_s, rate_hz, seed)
+    trace = simulate(truth, t, command, seed=seed)
+    clean = simulate(replace(truth, measurement=Measurement()), t, command, seed=seed)
+    unit = perturb_unit(truth, seed)
+    values = {name: unit.effect(name).params() for name in hidden}
+    return Case(
+        trace=trace,
+        start=start,
+        hidden=values,
+        signal="mixed",
+        clean=clean,
+        superfluous=tuple(superfluous),
+        switches=switches,
+    )

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import binary_dilation, median_filter
 
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import Measurement, SimConfig
@@ -46,9 +46,10 @@ class Measured:
     sigma : dict of str to float
         Noise standard deviation per channel (rpm, A, V), estimated from second differences.
     rpm_floor : float
-        Reporting floor of the speed, rpm (measured zeros are censored below it).
+        Reporting floor of the speed, rpm (measured zeros are censored below it), read from
+        the data (``reporting_floor``).
     floor_zeroes_current : bool
-        Whether the current is reported as 0 under the floor too.
+        Whether the current is reported as 0 under the floor too (read from the data).
     window : int
         Supply reconstruction window in samples.
     """
@@ -117,18 +118,47 @@ def _noise_sigma(x: np.ndarray, floor: float) -> float:
     return max(1.4826 * mad / math.sqrt(6.0), floor)
 
 
+BEND_SAMPLES = 2
+"""Samples on either side of a command bend that despiking leaves alone."""
+
+
 def _despike(x: np.ndarray, sigma: float, command: np.ndarray) -> np.ndarray:
     """Replace isolated spikes (more than 8 sigma off the 5-sample median) by that median.
 
-    Not where the command (shape (n,)) bends (second difference over 0.02): a one-sample
-    response to a one-sample command, as in a bench log with one rest row at neutral between
-    two steps, is the thruster's, not a telemetry glitch. Ramps and holds are straight.
+    Not within ``BEND_SAMPLES`` of where the command (shape (n,)) bends (second difference
+    over 0.02): a one-sample response to a one-sample command, as in a bench log with one rest
+    row at neutral between two steps, or the one-sample current peak of a fast thruster after
+    a step, is the thruster's, not a telemetry glitch. Ramps and holds are straight.
     """
     med = median_filter(x, size=5, mode="nearest")
     padded = np.pad(command, 1, mode="edge")
     bend = np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:]) > 0.02
+    # Also the samples just after: a fast thruster's current peaks for one sample a step or
+    # two after the command jumps (t200: 0.1 s ESC lag, 0.1 ohm), and that peak is real.
+    bend = binary_dilation(bend, iterations=BEND_SAMPLES)
     spikes = ~bend & (np.abs(x - med) > 8.0 * sigma)
     return np.where(spikes, med, x)
+
+
+def reporting_floor(rpm: np.ndarray, current: np.ndarray) -> tuple[float, bool]:
+    """Reporting floor of a measured speed and whether it zeroes the current too.
+
+    A sensor that reports 0 under a floor reports every other speed at or above it, so the
+    floor is the smallest non-zero |rpm| when the trace holds zeros at all (no zeros: 0, no
+    censoring). Its current is zeroed too when at least 90 % of the zero-speed samples carry
+    a current of exactly 0. Read from the data, not from the starting configuration: a
+    sensor with a higher floor than the model assumes would otherwise make every measured 0
+    between the two look like a flat zone (deadband, stiction).
+
+    Parameters
+    ----------
+    rpm, current : np.ndarray, shape (n,)
+        Measured speed (rpm) and bus current (A), before despiking.
+    """
+    zero = rpm == 0.0
+    if not np.any(zero) or np.all(zero):
+        return 0.0, False
+    return float(np.min(np.abs(rpm[~zero]))), bool(np.mean(current[zero] == 0.0) >= 0.9)
 
 
 def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
@@ -139,7 +169,7 @@ def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
     trace : Trace
         Measured trace with at least 100 samples spanning at least 20 s.
     config : SimConfig
-        Starting configuration (its measurement model gives the reporting floor).
+        Starting configuration (not used: the reporting floor is read from the data).
 
     Raises
     ------
@@ -167,6 +197,7 @@ def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
     block = np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
     held = np.isin(block, HELD_BLOCKS)
     dt = float(np.median(np.diff(cols["t"])))
+    rpm_floor, floor_zeroes_current = reporting_floor(cols["rpm"], cols["current"])
     return Measured(
         t=cols["t"] - cols["t"][0],
         command=np.clip(cols["command"], -1.0, 1.0),
@@ -176,8 +207,8 @@ def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
         fit=~held,
         held=held,
         sigma=sigma,
-        rpm_floor=config.measurement.rpm_floor,
-        floor_zeroes_current=config.measurement.floor_zeroes_current,
+        rpm_floor=rpm_floor,
+        floor_zeroes_current=floor_zeroes_current,
         window=max(3, round(SUPPLY_WINDOW_S / dt) | 1),
     )
 

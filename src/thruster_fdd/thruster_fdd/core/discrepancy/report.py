@@ -1,8 +1,9 @@
-"""Where the simulator disagrees with a measurement, and the discrepancy report files.
+"""The discrepancy report files of ``thruster-fdd discrepancy``.
 
-``regions`` splits the squared residual of rpm and current over operating regions, ``signatures``
-measures the cues that point to causes, ``write_report`` writes report.json, model.yaml,
-report.md, details.json and the PNG plots of ``thruster-fdd discrepancy``.
+``write_report`` writes report.json, model.yaml, report.md, details.json and the PNG plots into
+a staging folder that replaces the output folder only once everything is written
+(``core.atomic.replaced_dir``); ``check_out_dir`` refuses an output folder that holds anything
+else, before the workflow runs.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from thruster_fdd.core.discrepancy.fit import Fit
+from thruster_fdd.core.atomic import replaced_dir, write_text
+from thruster_fdd.core.discrepancy.fit import BASE_FIT, BASE_RANGE, Fit
 from thruster_fdd.core.discrepancy.measure import (
     Measured,
     describe,
@@ -23,8 +25,44 @@ from thruster_fdd.core.discrepancy.measure import (
     simulate_model,
     weighted_residuals,
 )
-from thruster_fdd.core.discrepancy.search import MIN_GAIN, STRUCTURED, Result
+from thruster_fdd.core.discrepancy.search import (
+    AT_BOUND,
+    CONTRADICTED,
+    MIN_GAIN,
+    STRUCTURED,
+    Result,
+)
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import dump_config
+
+REPORT_FILES = (
+    "report.json",
+    "model.yaml",
+    "report.md",
+    "details.json",
+    "overlay.png",
+    "residual_vs_command.png",
+    "hysteresis.png",
+)
+"""Every file ``write_report`` writes."""
+
+
+def check_out_dir(out: str | Path) -> None:
+    """BadInputError unless ``out`` is new, empty, or holds only an earlier report's files.
+
+    The report replaces the whole folder, so a folder holding anything else is refused.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise BadInputError(f"--out {out}: exists and is not a folder")
+    if out.is_dir():
+        other = sorted(p.name for p in out.iterdir() if p.name not in REPORT_FILES)
+        if other:
+            raise BadInputError(
+                f"--out {out}: holds files other than a discrepancy report ({', '.join(other[:3])}"
+                f"{', ...' if len(other) > 3 else ''}); the report replaces the whole folder, "
+                "give a new or empty one"
+            )
 
 
 def _plots(result: Result, data: Measured, sims: dict[str, dict], out: Path) -> list[str]:
@@ -120,33 +158,77 @@ def _gap_rows(label: str, fit: Fit) -> str:
     )
 
 
+def _base_rows(result: Result) -> list[str]:
+    """Fitted base and structural terms of the final model against the start."""
+    start = result.start.config
+    rows = ["| parameter | start (calibrated) | final | std |", "|---|---|---|---|"]
+    for key, value, std in zip(
+        result.final.names, result.final.values, result.final.std, strict=True
+    ):
+        owner, name = key.split(".")
+        if owner not in ("params", "structure"):
+            continue
+        before = getattr(start.params if owner == "params" else start.structure, name)
+        rows.append(
+            f"| {key} | {_fmt(float(before))} | {_fmt(float(value))} | {_fmt(float(std))} |"
+        )
+    return rows
+
+
+def at_bound(result: Result) -> list[str]:
+    """Base parameters of the final model on their calibration bound, described."""
+    if result.anchor is None:
+        return []
+    out = []
+    for key, value in zip(result.final.names, result.final.values, strict=True):
+        owner, name = key.split(".")
+        if owner != "params" or name not in BASE_FIT or name == "i_idle_a":
+            continue
+        ref = float(getattr(result.anchor.params, name))
+        factor = result.ranges.get(key, BASE_RANGE)
+        if abs(math.log(value / ref)) >= math.log(factor) - AT_BOUND:
+            out.append(f"{name} {_fmt(float(value))} (start {_fmt(ref)}, bound x{factor:g})")
+    return out
+
+
 def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[str]) -> str:
     """The report.md text."""
     rep = result.report()
+    found = [f"missing: {', '.join(f'`{n}`' for n in result.added)}"] if result.added else []
+    if rep["superfluous_effects"]:
+        names = ", ".join(f"`{m['name']}`" for m in rep["superfluous_effects"])
+        found.append(f"superfluous: {names}")
     lines = [
         "# Discrepancy report",
         "",
-        f"**Verdict: `{rep['verdict']}`**"
-        + (f" — missing: {', '.join(f'`{n}`' for n in result.added)}" if result.added else ""),
+        f"**Verdict: `{rep['verdict']}`**" + (f" — {'; '.join(found)}" if found else ""),
         "",
     ]
-    if result.added and result.final.gap.score > STRUCTURED:
+    if result.final.gap.score > STRUCTURED:
         why = (
-            "no further candidate of the vocabulary explains it"
-            if result.rounds[-1].chosen is None
+            "no candidate of the vocabulary explains it"
+            if not result.rounds or result.rounds[-1].chosen is None
             else f"the search stopped after {len(result.rounds)} rounds"
         )
         lines += [
-            f"The residual after them is still structured (held-out score "
-            f"{result.final.gap.score:.1f} > {STRUCTURED:g}) and {why}: see where the model "
-            f"after disagrees, below.",
+            f"The residual of the final model is still structured (held-out score "
+            f"{result.final.gap.score:.1f} > {STRUCTURED:g}) and {why}: see where the final "
+            "model disagrees, below.",
+            "",
+        ]
+    edge = at_bound(result)
+    if edge:
+        lines += [
+            "Base parameters on their calibration bound (the thruster differs from the start "
+            f"there, or they make up for something else): {'; '.join(edge)}.",
             "",
         ]
     lines += [
         f"Samples: {len(data.t)} over {data.t[-1]:.0f} s; fit on {int(data.fit.sum())}, "
         f"held out {int(data.held.sum())} (interleaved blocks). Noise estimate: "
         f"rpm {data.sigma['rpm']:.3g}, current {data.sigma['current']:.3g} A, "
-        f"voltage {data.sigma['voltage']:.3g} V.",
+        f"voltage {data.sigma['voltage']:.3g} V. Reporting floor read from the data: "
+        f"{data.rpm_floor:.0f} rpm{' (current zeroed too)' if data.floor_zeroes_current else ''}.",
         "",
     ]
     lines += [f"- warning: {w}" for w in result.warnings]
@@ -158,6 +240,34 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
                 lines.append(f"| `{m['name']}` | {p} | {_fmt(v)} | {_fmt(m['uncertainty'][p])} |")
     else:
         lines.append("none")
+    lines += ["", "## Effects of the start the thruster lacks", ""]
+    if result.superfluous:
+        lines += [
+            f"Each effect of the start the search did not name, fitted freely: superfluous when "
+            f"the fit moves it more than {CONTRADICTED:g} standard deviations from the start's "
+            f"value towards none and the model re-fitted without it is no worse (lower BIC, "
+            f"held-out score no higher).",
+            "",
+            "| effect | start | fitted (std) | ΔBIC without | held-out score with / without "
+            "| superfluous |",
+            "|---|---|---|---|---|---|",
+        ]
+        for t in result.superfluous:
+            start = ", ".join(f"{k} {_fmt(v)}" for k, v in t.start_params.items())
+            fitted = ", ".join(
+                f"{_fmt(t.fitted[k])} ({_fmt(t.fitted_std[k])})" for k in t.start_params
+            )
+            without = t.without.gap.score if t.without is not None else math.nan
+            lines.append(
+                f"| `{t.name}` | {start} | {fitted} | {t.delta_bic:.1f} | "
+                f"{t.score_with:.2f} / {without:.2f} | "
+                f"{'yes' if t.superfluous else 'no'} |"
+            )
+    else:
+        lines.append("the start holds no effect the search did not name")
+    lines += ["", "## Base changes", ""]
+    lines += [f"- {n}" for n in result.base_changes] or ["none"]
+    lines += ["", "### Base and structural terms", "", *_base_rows(result)]
     lines += [
         "",
         "## Gap on held-out data, after each step",
@@ -169,7 +279,7 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         _gap_rows("calibrated start", result.start),
     ]
     for rnd in result.rounds:
-        chosen = next((c for c in rnd.candidates if c.name == rnd.chosen), None)
+        chosen = next((c for c in rnd.candidates if c.name == rnd.chosen and c.accepted), None)
         if chosen is not None:
             lines.append(_gap_rows(f"+ {chosen.name} (candidate re-fit)", chosen.fit))
     lines += [_gap_rows("final (calibrated)", result.final), ""]
@@ -185,8 +295,9 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
             "|---|---|---|---|---|---|",
         ]
         for c in sorted(rnd.candidates, key=lambda c: c.fit.gap.score):
+            name = f"`{c.name}` + {c.joint.label}" if c.joint else f"`{c.name}`"
             lines.append(
-                f"| `{c.name}` | {c.delta_bic:.1f} | {c.gain:.2f} | {c.own_gain:.2f} | "
+                f"| {name} | {c.delta_bic:.1f} | {c.gain:.2f} | {c.own_gain:.2f} | "
                 f"{c.fit.gap.score:.2f} | {'yes' if c.accepted else 'no'} |"
             )
         lines.append("")
@@ -212,23 +323,27 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
 def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, Path]:
     """Write report.json, model.yaml, report.md, details.json and PNG plots into ``out``.
 
+    The files are written into a staging folder beside ``out``, which replaces ``out`` only
+    when all of them are complete (``core.atomic.replaced_dir``): a run that fails leaves what
+    was there before. ``check_out_dir`` says which folders may be replaced.
+
     Returns
     -------
     dict of str to Path
         File kind -> written path.
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_out_dir(out)
     sims = {
         "before": simulate_model(result.start.config, data),
         "after": simulate_model(result.final.config, data),
     }
-    plots = _plots(result, data, sims, out)
-    (out / "report.json").write_text(json.dumps(result.report(), indent=2) + "\n")
-    dump_config(result.final.config, out / "model.yaml")
-    (out / "report.md").write_text(markdown(result, data, sims, plots))
     details = {
         "warnings": list(result.warnings),
+        "reporting_floor_rpm": data.rpm_floor,
+        "floor_zeroes_current": data.floor_zeroes_current,
+        "base_changes": list(result.base_changes),
+        "at_bound": at_bound(result),
         "signatures_before": signatures(sims["before"], data),
         "signatures_after": signatures(sims["after"], data),
         "regions_before": [r.__dict__ for r in regions(sims["before"], data, data.held)],
@@ -239,6 +354,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
                 "candidates": [
                     {
                         "name": c.name,
+                        "with": c.joint.label if c.joint else None,
                         "delta_bic": c.delta_bic,
                         "gain": c.gain,
                         "held_out_score": c.fit.gap.score,
@@ -250,16 +366,31 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
             }
             for rnd in result.rounds
         ],
+        "superfluous_tests": [
+            {
+                "name": t.name,
+                "start_params": t.start_params,
+                "fitted": t.fitted,
+                "fitted_std": t.fitted_std,
+                "contradicted": t.contradicted,
+                "delta_bic_without": t.delta_bic,
+                "held_out_score_without": t.without.gap.score if t.without else None,
+                "superfluous": t.superfluous,
+            }
+            for t in result.superfluous
+        ],
         "gap_score_before": result.start.gap.score,
         "gap_score_after": result.final.gap.score,
         "fitted": dict(zip(result.final.names, result.final.values.tolist(), strict=True)),
     }
-    (out / "details.json").write_text(json.dumps(details, indent=2) + "\n")
+    with replaced_dir(out) as stage:
+        plots = _plots(result, data, sims, stage)
+        write_text(stage / "report.json", json.dumps(result.report(), indent=2) + "\n")
+        dump_config(result.final.config, stage / "model.yaml")
+        write_text(stage / "report.md", markdown(result, data, sims, plots))
+        write_text(stage / "details.json", json.dumps(details, indent=2, default=float) + "\n")
     files = {
-        "report.json": out / "report.json",
-        "model.yaml": out / "model.yaml",
-        "report.md": out / "report.md",
-        "details.json": out / "details.json",
+        name: out / name for name in ("report.json", "model.yaml", "report.md", "details.json")
     }
     files.update({p: out / p for p in plots})
     return files

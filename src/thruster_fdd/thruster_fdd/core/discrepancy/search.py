@@ -25,15 +25,21 @@ zero only says the model's speed should be under the floor.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 
 import numpy as np
 from tqdm import tqdm
 
-from thruster_fdd.core.discrepancy.fit import Fit, calibrate
+from thruster_fdd.core.discrepancy.fit import (
+    BASE_FIT,
+    BASE_RANGE,
+    Fit,
+    calibrate,
+    without_effects,
+)
 from thruster_fdd.core.discrepancy.measure import (
     CHANNELS,
     Measured,
@@ -69,6 +75,20 @@ CANDIDATE_ITER = 6
 MAX_ROUNDS = 3
 
 
+WIDE_RANGE = 4.0
+"""Factor around the start to which a base parameter found on its ``BASE_RANGE`` bound may be
+widened (``base_changes``)."""
+
+
+SECOND_STAGE = 0.3
+"""Starting time constant of an adopted second ESC stage, as a fraction of the ``esc_lag``'s."""
+
+
+BASE_GAIN = 0.5
+"""Fraction of the held-out excess error a base change (a widened bound, the other braking
+law) must remove to be accepted (``try_base_change``)."""
+
+
 @dataclass(frozen=True)
 class Candidate:
     """One candidate effect after its re-fit.
@@ -89,6 +109,8 @@ class Candidate:
         Score on the fit samples of the re-fit with the effect removed again, minus that with
         it, as a fraction of the base's excess error there: what the effect itself accounts
         for.
+    joint : BaseChange or None
+        The base change (a widened bound) the effect was re-fitted with, if any.
     """
 
     name: str
@@ -97,6 +119,7 @@ class Candidate:
     gain: float
     accepted: bool
     own_gain: float = math.nan
+    joint: BaseChange | None = None
 
 
 @dataclass(frozen=True)
@@ -106,6 +129,45 @@ class Round:
     before: Fit
     candidates: tuple[Candidate, ...]
     chosen: str | None
+
+
+@dataclass(frozen=True)
+class Superfluous:
+    """The superfluity test of one effect the start holds (``test_superfluous``).
+
+    Attributes
+    ----------
+    name : str
+        Effect name.
+    start_params : dict of str to float
+        Its parameters in the start configuration (what the start claims).
+    fitted : dict of str to float
+        Its parameters as the calibration fitted them freely.
+    fitted_std : dict of str to float
+        Their standard deviations.
+    contradicted : bool
+        Whether the fit puts every parameter more than ``CONTRADICTED`` standard deviations
+        from the start's value, towards none.
+    score_with : float
+        Held-out score of the model with it (fitted freely).
+    without : Fit or None
+        The model re-fitted without it (only if ``contradicted``).
+    delta_bic : float
+        BIC without it minus BIC with it (negative: it does not pay; nan if not re-fitted).
+    superfluous : bool
+        Whether it passed: contradicted, ``delta_bic < 0`` and a held-out score without it
+        no higher than with it (within ``SAME_SCORE``).
+    """
+
+    name: str
+    start_params: dict[str, float]
+    fitted: dict[str, float]
+    fitted_std: dict[str, float]
+    contradicted: bool
+    score_with: float
+    without: Fit | None
+    delta_bic: float
+    superfluous: bool
 
 
 @dataclass(frozen=True)
@@ -126,6 +188,15 @@ class Result:
         Search rounds.
     warnings : tuple of str
         Non-fatal problems (e.g. a dropped effect the configuration lacks).
+    base_changes : tuple of str
+        Changes of the base model the search made (``base_changes``), one line each.
+    superfluous : tuple of Superfluous
+        The superfluity test of every effect of the start that was not named; those that
+        passed are removed from ``final``.
+    anchor : SimConfig or None
+        The starting configuration (after ``--drop``), the anchor of the base bounds.
+    ranges : dict of str to float
+        Bound factors of base parameters widened by the search (others: ``BASE_RANGE``).
     """
 
     verdict: str
@@ -134,6 +205,10 @@ class Result:
     added: tuple[str, ...]
     rounds: tuple[Round, ...]
     warnings: tuple[str, ...]
+    base_changes: tuple[str, ...] = ()
+    superfluous: tuple[Superfluous, ...] = ()
+    anchor: SimConfig | None = None
+    ranges: dict[str, float] = field(default_factory=dict)
 
     def report(self) -> dict:
         """The report.json mapping, exactly the keys of docs/contracts.md."""
@@ -148,9 +223,19 @@ class Result:
                     "uncertainty": {p: self.final.uncertainty(f"{name}.{p}") for p in params},
                 }
             )
+        superfluous = [
+            {
+                "name": sup.name,
+                "params": sup.start_params,
+                "uncertainty": sup.fitted_std,
+            }
+            for sup in self.superfluous
+            if sup.superfluous
+        ]
         return {
             "verdict": self.verdict,
             "missing_effects": missing,
+            "superfluous_effects": superfluous,
             "gap_before": self.start.gap.public(),
             "gap_after": self.final.gap.public(),
         }
@@ -208,8 +293,11 @@ def candidate_grid(name: str, config: SimConfig, data: Measured) -> list[dict[st
 
 
 def _score_config(config: SimConfig, data: Measured) -> float:
+    """Mean squared residual on the fit samples, noise units (inf if the simulation blows up)."""
     res = weighted_residuals(simulate_model(config, data), data)
-    return float(sum(np.mean(res[c][data.fit] ** 2) / data.sigma[c] ** 2 for c in CHANNELS))
+    with np.errstate(over="ignore", invalid="ignore"):
+        score = float(sum(np.mean(res[c][data.fit] ** 2) / data.sigma[c] ** 2 for c in CHANNELS))
+    return score if math.isfinite(score) else math.inf
 
 
 def try_candidate(
@@ -218,6 +306,8 @@ def try_candidate(
     data: Measured,
     origin: SimConfig | None = None,
     max_iter: int = CANDIDATE_ITER,
+    anchor: SimConfig | None = None,
+    ranges: Mapping[str, float] | None = None,
 ) -> Candidate:
     """Add effect ``name`` to ``base``, grid-initialise it, re-fit, and test it.
 
@@ -243,8 +333,12 @@ def try_candidate(
         scores = [_score_config(c, data) for c in trials]
         starts.append(trials[int(np.argmin(scores))])
         n_trials += len(trials)
-    # ``origin`` holds the user's base values, the anchor of the base parameters' bounds.
-    fits = [calibrate(start, data, max_iter=max_iter, anchor=origin) for start in starts]
+    # The anchor of the base parameters' bounds: the user's start (``origin`` holds its base
+    # values).
+    anchor = origin if anchor is None else anchor
+    fits = [
+        calibrate(start, data, max_iter=max_iter, anchor=anchor, ranges=ranges) for start in starts
+    ]
     fit = min(fits, key=lambda f: f.bic)
     fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + n_trials)
     delta_bic = fit.bic - base.bic  # both penalise all their parameters
@@ -255,7 +349,7 @@ def try_candidate(
     # Measured on the fit samples: an effect active in few places (a current limit binding for
     # 2 s of a 60 s trace) may be active in none of the held-out blocks, where its removal
     # changes nothing; the held-out gain above already checks that the re-fit generalises.
-    ablated = replace(fit.config, effects=tuple(e for e in fit.config.effects if e.name != name))
+    ablated = without_effects(fit.config, (name,))
     base_fit = gap(simulate_model(base.config, data), data, data.fit).score
     fit_score = gap(simulate_model(fit.config, data), data, data.fit).score
     ablated_score = gap(simulate_model(ablated, data), data, data.fit).score
@@ -272,25 +366,229 @@ def try_candidate(
     )
 
 
-def _run_candidate(args: tuple[str, Fit, Measured, SimConfig | None]) -> Candidate:
-    return try_candidate(*args)
+def _run_candidate(args: tuple) -> Candidate:
+    what, base, data, origin, anchor, ranges = args
+    if isinstance(what, BaseChange):
+        return try_base_change(what, base, data, anchor, origin)
+    return try_candidate(what, base, data, origin, anchor=anchor, ranges=ranges)
 
 
-def _recalibrate(config: SimConfig, added: Sequence[str], chosen: Candidate, data: Measured) -> Fit:
+def _recalibrate(
+    config: SimConfig,
+    origin: SimConfig,
+    added: Sequence[str],
+    chosen: Candidate,
+    data: Measured,
+    ranges: Mapping[str, float],
+) -> Fit:
     """Full calibration with ``added`` and ``chosen`` effects, from the better of two origins.
 
-    The origins: the start's values plus the effects (the start's fit may have drifted to
-    compensate for what was missing) and the candidate's re-fit; whichever fits better to begin
-    with is calibrated, and the candidate's re-fit is kept if that does not improve its BIC.
+    The origins: ``origin`` (the start's values, with the base changes made so far)
+    plus the effects (the start's fit may have drifted to compensate for what was missing)
+    and the candidate's re-fit; whichever fits better to begin with is calibrated, and the
+    candidate's re-fit is kept if that does not improve its BIC. ``config`` is the anchor.
     """
-    reset = config
+    reset = origin
     for name in (*added, chosen.name):
         reset = set_effect(reset, chosen.fit.config.effect(name))
     origins = (reset, chosen.fit.config)
-    fit = calibrate(min(origins, key=lambda c: _score_config(c, data)), data, anchor=config)
+    best = min(origins, key=lambda c: _score_config(c, data))
+    fit = calibrate(best, data, anchor=config, ranges=ranges)
     if fit.bic > chosen.fit.bic:
-        fit = calibrate(chosen.fit.config, data, anchor=config)
+        fit = calibrate(chosen.fit.config, data, anchor=config, ranges=ranges)
     return fit
+
+
+AT_BOUND = math.log(1.05)
+"""A base parameter within 5 % of its bound counts as on it (the optimizer approaches a bound
+it is pushed against, and may stop short: k_q at 0.979 of a factor 2 below the start)."""
+
+
+def _at_bound(fit: Fit, anchor: SimConfig, ranges: Mapping[str, float]) -> list[str]:
+    """Base parameters (``params.NAME`` of ``BASE_FIT``) of ``fit`` on their ``BASE_RANGE``
+    bound (not yet widened)."""
+    out = []
+    for name in BASE_FIT:
+        key = f"params.{name}"
+        if key == "params.i_idle_a" or key in ranges:
+            continue  # i_idle_a: linear from 0, its bounds are physical, not around the start
+        ratio = abs(math.log(getattr(fit.config.params, name) / getattr(anchor.params, name)))
+        if ratio >= math.log(BASE_RANGE) - AT_BOUND:
+            out.append(key)
+    return out
+
+
+@dataclass(frozen=True)
+class BaseChange:
+    """A change of the base model, tried beside the effects in a search round.
+
+    Attributes
+    ----------
+    label : str
+        What it changes (``base: ...``).
+    ranges : dict of str to float
+        Bound factors of base parameters with the change.
+    regen : bool or None
+        The braking law it switches to (None: unchanged).
+    second_stage : bool
+        Whether it adds a second ESC stage (``SECOND_STAGE`` times the ``esc_lag`` to start).
+    no_drive_saturation : bool
+        Whether it removes the start's ESC drive saturation (``esc_v_sat_v`` to inf).
+    """
+
+    label: str
+    ranges: dict[str, float]
+    regen: bool | None = None
+    second_stage: bool = False
+    no_drive_saturation: bool = False
+
+    def apply(self, config: SimConfig) -> SimConfig:
+        """``config`` with the change (its bounds aside)."""
+        structure = config.structure
+        if self.regen is not None:
+            structure = replace(structure, regen=self.regen)
+        lag = config.effect("esc_lag")
+        if self.second_stage and lag is not None:
+            structure = replace(structure, esc_tau2_s=SECOND_STAGE * lag.tau_s)
+        params = config.params
+        if self.no_drive_saturation:
+            params = replace(params, esc_v_sat_v=math.inf)
+        return replace(config, params=params, structure=structure)
+
+
+def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -> list[BaseChange]:
+    """Base changes a round may try, each once: base parameters the calibration left on their
+    ``BASE_RANGE`` bound re-fitted within ``WIDE_RANGE`` (a thruster of the same class outside
+    the usual range: another propeller, wiring, rotor), a second ESC stage behind the
+    ``esc_lag`` (a second-order ESC), the other braking law (coasting instead of
+    regeneration, or the reverse), a switch least squares cannot fit, and, where the start has
+    an ESC drive saturation, none: a structural term the start has is kept by the calibration
+    (``fit.STRUCTURE_FIT``), so a thruster without it was otherwise fitted with stand-ins (a
+    deadband on t200 mismatch cases whose drive saturation was switched off)."""
+    out = []
+    edge = _at_bound(current, config, ranges)
+    if edge:
+        names = ", ".join(k.split(".")[1] for k in edge)
+        wide = {**ranges, **dict.fromkeys(edge, WIDE_RANGE)}
+        out.append(BaseChange(f"base: {names} within x{WIDE_RANGE:g}", wide))
+    structure = current.config.structure
+    if (
+        current.config.effect("esc_lag") is not None
+        and config.structure.esc_tau2_s == 0.0
+        and structure.esc_tau2_s == 0.0
+    ):
+        out.append(BaseChange("base: second ESC stage", dict(ranges), second_stage=True))
+    if structure.regen == config.structure.regen:
+        regen = not config.structure.regen
+        label = "base: regenerative braking" if regen else "base: coasting, no regeneration"
+        out.append(BaseChange(label, dict(ranges), regen=regen))
+    if math.isfinite(config.params.esc_v_sat_v) and math.isfinite(
+        current.config.params.esc_v_sat_v
+    ):
+        out.append(BaseChange("base: no drive saturation", dict(ranges), no_drive_saturation=True))
+    return out
+
+
+def try_base_change(
+    change: BaseChange, base: Fit, data: Measured, config: SimConfig, named: SimConfig
+) -> Candidate:
+    """Re-fit ``base`` with ``change``, from two origins like ``try_candidate``: the current
+    model and ``named`` (the uncalibrated start plus the effects named so far), each with the
+    change; the lower BIC is kept. Accepted on a lower BIC and a held-out gain of at least
+    ``BASE_GAIN`` (stricter than an effect's ``MIN_GAIN``: a parameter that leaves its range
+    to explain only part of the gap is more likely making up for something else; on the T200
+    bench trace ``r_ohm`` would go to a quarter of the preset's, remove 27 % of the excess and
+    leave the deadband 21 % small)."""
+    # Full calibrations (12 iterations, not CANDIDATE_ITER): a base change re-shapes the whole
+    # model, and from a model distorted by a parameter on its bound 6 iterations fall short
+    # (an out-of-range k_q and a hidden dead time: 6 remove 43 % of the excess, 12 most of it).
+    fits = [
+        calibrate(change.apply(c), data, anchor=config, ranges=change.ranges)
+        for c in (base.config, named)
+    ]
+    fit = min(fits, key=lambda f: f.bic)
+    fit = replace(fit, n_sims=sum(f.n_sims for f in fits))
+    delta_bic = fit.bic - base.bic
+    gain = (base.gap.score - fit.gap.score) / max(base.gap.score - 1.0, 1e-12)
+    accepted = delta_bic < 0.0 and gain >= BASE_GAIN
+    return Candidate(change.label, fit, delta_bic, gain, accepted, gain)
+
+
+SAME_SCORE = 0.01
+"""Relative tolerance within which two held-out scores count as the same (re-fits of equal
+models land that close)."""
+
+
+CONTRADICTED = 3.0
+"""Standard deviations between the start's value of an effect and the fitted one, towards
+none, for the start's value to count as contradicted by the data (``test_superfluous``)."""
+
+
+NEUTRAL: dict[str, float] = {
+    "dead_time": 0.0,
+    "deadband": 0.0,
+    "esc_lag": 0.0,
+    "slew_rate_limit": math.inf,
+    "coulomb_friction": 0.0,
+    "viscous_friction": 0.0,
+    "voltage_sag": 0.0,
+    "current_limit": math.inf,
+}
+"""The parameter value at which each effect does nothing (its direction of 'none')."""
+
+
+def test_superfluous(
+    name: str,
+    final: Fit,
+    config: SimConfig,
+    data: Measured,
+    ranges: Mapping[str, float],
+) -> Superfluous:
+    """Whether effect ``name`` of the start is one the thruster lacks.
+
+    Superfluous when (1) the calibration, fitting the effect freely, moved every parameter more
+    than ``CONTRADICTED`` standard deviations from the start's value towards none (the data
+    contradict the start's claim, not merely fail to confirm it: a current limit that never
+    binds, a friction torque under the noise, stay), and (2) the model re-fitted without it is
+    no worse: a lower BIC and a held-out score no higher than with it (within ``SAME_SCORE``).
+    """
+    claimed = config.effect(name).params()
+    effect = final.config.effect(name)
+    fitted = effect.params()
+    std = {p: final.uncertainty(f"{name}.{p}") for p in claimed}
+    neutral = NEUTRAL[name]
+    contradicted = all(
+        math.isfinite(std[p])
+        and (fitted[p] - claimed[p]) * (neutral - claimed[p]) > 0.0
+        and abs(fitted[p] - claimed[p]) > CONTRADICTED * std[p]
+        for p in claimed
+    )
+    if not contradicted:
+        return Superfluous(
+            name, claimed, fitted, std, False, final.gap.score, None, math.nan, False
+        )
+    lean = without_effects(final.config, (name,))
+    without = calibrate(lean, data, max_iter=CANDIDATE_ITER, anchor=config, ranges=ranges)
+    delta_bic = without.bic - final.bic
+    ok = delta_bic < 0.0 and without.gap.score <= final.gap.score * (1.0 + SAME_SCORE)
+    return Superfluous(name, claimed, fitted, std, True, final.gap.score, without, delta_bic, ok)
+
+
+def _run_jobs(jobs: list[tuple], workers: int, progress: bool, desc: str) -> list[Candidate]:
+    """Run candidate jobs (``_run_candidate``) in ``workers`` processes, in order."""
+    bar = tqdm(total=len(jobs), desc=desc, disable=not progress, unit="candidate")
+    results: list[Candidate] = []
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork")) as pool:
+            for cand in pool.map(_run_candidate, jobs):
+                results.append(cand)
+                bar.update()
+    else:
+        for job in jobs:
+            results.append(_run_candidate(job))
+            bar.update()
+    bar.close()
+    return results
 
 
 def search(
@@ -300,74 +598,135 @@ def search(
     workers: int = 2,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
-) -> tuple[Fit, Fit, tuple[str, ...], tuple[Round, ...]]:
-    """Calibrate ``config`` and add missing effects while an addition helps.
+    warnings: tuple[str, ...] = (),
+) -> Result:
+    """Calibrate ``config``, adjust its base, add missing effects while an addition helps,
+    and drop effects of the start the thruster lacks.
 
     Returns
     -------
-    (start, final, added, rounds)
-        Calibrated start, calibrated final configuration, named effects, search rounds.
+    Result
+        With the verdict: ``effects_found`` if an effect was named missing or superfluous,
+        else ``unexplained`` if the held-out score is above ``STRUCTURED``, else
+        ``nothing_missing``.
     """
     say = log or (lambda _msg: None)
     start = calibrate(config, data)
     say(f"calibrated start: held-out score {start.gap.score:.2f} ({start.n_sims} simulations)")
-    current = start
+    current, origin, ranges = start, config, {}
     added: list[str] = []
+    changed: list[str] = []
     rounds: list[Round] = []
-    ctx = get_context("fork")
-    for _ in range(MAX_ROUNDS):
+    while len(added) < MAX_ROUNDS and current.gap.score > 1.0 + 1e-9:
         names = [n for n in EFFECTS if current.config.effect(n) is None]
-        if not names or current.gap.score <= 1.0 + 1e-9:
+        changes = base_changes(current, config, ranges)
+        if not names and not changes:
             break
-        # Control: the same model re-fitted once more, so that a candidate is credited only
-        # with what its effect adds, not with what further fitting of the base would give.
-        control = calibrate(current.config, data, max_iter=CANDIDATE_ITER, anchor=config)
-        if control.bic < current.bic:
-            current = replace(control, n_sims=control.n_sims + current.n_sims)
-        origin = config
+        named = origin
         for name in added:
-            origin = set_effect(origin, current.config.effect(name))
-        jobs = [(n, current, data, origin) for n in names]
-        bar = tqdm(
-            total=len(jobs),
-            desc=f"candidates (round {len(rounds) + 1})",
-            disable=not progress,
-            unit="effect",
-        )
-        results: list[Candidate] = []
-        if workers > 1:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                for cand in pool.map(_run_candidate, jobs):
-                    results.append(cand)
-                    bar.update()
-        else:
-            for job in jobs:
-                results.append(_run_candidate(job))
-                bar.update()
-        bar.close()
+            named = set_effect(named, current.config.effect(name))
+        # Control: the same model re-fitted once more, from the same two origins a candidate
+        # starts from (the current model and the uncalibrated start plus the named effects),
+        # so that a candidate is credited only with what its effect adds, not with what
+        # further fitting of the base would give (after a base change, 6 more iterations
+        # from the start took a model from held-out score 1.28 to 1.02 with any candidate).
+        for origin_config in (current.config, named):
+            control = calibrate(
+                origin_config, data, max_iter=CANDIDATE_ITER, anchor=config, ranges=ranges
+            )
+            if control.bic < current.bic:
+                current = replace(control, n_sims=control.n_sims + current.n_sims)
+        jobs = [(w, current, data, named, config, ranges) for w in [*names, *changes]]
+        results = _run_jobs(jobs, workers, progress, f"candidates (round {len(rounds) + 1})")
         accepted = sorted((c for c in results if c.accepted), key=lambda c: c.fit.gap.score)
+        widen = next((ch for ch in changes if ch.ranges != ranges), None)
+        if not accepted and widen is not None and names:
+            # Nothing passes on its own, and a base parameter sits on its bound: an effect may
+            # show only together with the wider bound, and the bound be worth widening only with
+            # the effect (a hidden slew limit in a thruster with k_q outside the range: either
+            # alone gains under 15 %). Each effect is re-fitted with the bound widened; it is
+            # accepted by the rules of an effect, and the widening must remove BASE_GAIN of
+            # what the effect alone left (on the T200 bench trace it removes a quarter).
+            jobs = [(n, current, data, named, config, widen.ranges) for n in names]
+            alone = {c.name: c for c in results}
+            for c in _run_jobs(jobs, workers, progress, "candidates with a wider bound"):
+                before = alone[c.name].fit.gap.score
+                marginal = (before - c.fit.gap.score) / max(before - 1.0, 1e-12)
+                joint = replace(c, joint=widen, accepted=c.accepted and marginal >= BASE_GAIN)
+                results.append(joint)
+            accepted = sorted((c for c in results if c.accepted), key=lambda c: c.fit.gap.score)
         for c in sorted(results, key=lambda c: c.fit.gap.score):
+            label = f"{c.name} + {c.joint.label}" if c.joint else c.name
             say(
-                f"  {c.name:17s} dBIC {c.delta_bic:12.1f} gain {c.gain:6.2f} own {c.own_gain:6.2f} "
+                f"  {label:17s} dBIC {c.delta_bic:12.1f} gain {c.gain:6.2f} own {c.own_gain:6.2f} "
                 f"held-out score {c.fit.gap.score:9.2f}{'  accepted' if c.accepted else ''}"
             )
-        # The candidate re-fits are short (CANDIDATE_ITER); the best two accepted ones get a
-        # full calibration each and the better of those (held-out score) is named. (A hidden
-        # viscous friction, for instance, is at first fitted better by a Coulomb torque.)
-        finals = [(c, _recalibrate(config, added, c, data)) for c in accepted[:2]]
+        # The effects' re-fits are short (CANDIDATE_ITER); the best two accepted candidates get
+        # a full calibration each (a base change had one already) and the better of those
+        # (held-out score) is chosen. (A hidden viscous friction, for instance, is at first
+        # fitted better by a Coulomb torque.)
+        by_label = {ch.label: ch for ch in changes}
+        finals = []
+        for c in accepted[:2]:
+            if c.name in by_label:
+                finals.append((c, c.fit))
+            else:
+                wide = c.joint.ranges if c.joint else ranges
+                finals.append((c, _recalibrate(config, origin, added, c, data, wide)))
+        for c, full in finals:
+            say(f"  full calibration with {c.name}: held-out score {full.gap.score:.2f}")
         chosen, best = min(finals, key=lambda cf: cf[1].gap.score) if finals else (None, None)
         rounds.append(
             Round(before=current, candidates=tuple(results), chosen=chosen.name if chosen else None)
         )
         if chosen is None or best is None:
             break
-        added.append(chosen.name)
+        change = by_label.get(chosen.name) or chosen.joint
+        if change is not None:
+            ranges, origin = change.ranges, change.apply(origin)
+            changed.append(
+                f"{change.label.removeprefix('base: ')} (held-out score {current.gap.score:.2f} "
+                f"-> {best.gap.score:.2f}{f', with {chosen.name}' if chosen.joint else ''})"
+            )
+        if chosen.name not in by_label:
+            added.append(chosen.name)
         current = best
         say(
-            f"added {chosen.name}: held-out score {current.gap.score:.2f} "
-            f"({sum(c.fit.n_sims for c in results) + current.n_sims} simulations)"
+            f"{'changed' if chosen.name in by_label else 'added'} {chosen.name}: held-out score "
+            f"{current.gap.score:.2f} ({sum(c.fit.n_sims for c in results) + current.n_sims} "
+            "simulations)"
         )
-    return start, current, tuple(added), tuple(rounds)
+    tests = tuple(
+        test_superfluous(e.name, current, config, data, ranges)
+        for e in config.effects
+        if e.name not in added
+    )
+    dropped = [t for t in tests if t.superfluous]
+    for t in tests:
+        values = ", ".join(
+            f"{p} {t.fitted[p]:.4g} +- {t.fitted_std[p]:.2g} (start {v:.4g})"
+            for p, v in t.start_params.items()
+        )
+        without = (
+            f"; without: dBIC {t.delta_bic:.1f}, held-out score {t.without.gap.score:.2f}"
+            if t.without is not None
+            else ""
+        )
+        say(f"  start's {t.name}: {values}{without}{'  superfluous' if t.superfluous else ''}")
+    if dropped:
+        lean = without_effects(current.config, {t.name for t in dropped})
+        current = calibrate(lean, data, anchor=config, ranges=ranges)
+        say(f"dropped {', '.join(t.name for t in dropped)}: held-out score {current.gap.score:.2f}")
+    if added or dropped:
+        verdict = "effects_found"
+    elif current.gap.score > STRUCTURED:
+        verdict = "unexplained"
+    else:
+        verdict = "nothing_missing"
+    return Result(
+        verdict, start, current, tuple(added), tuple(rounds), warnings, tuple(changed), tests,
+        config, dict(ranges),
+    )  # fmt: skip
 
 
 def run_workflow(
@@ -403,11 +762,5 @@ def run_workflow(
     """
     config, warnings = start_config(source, drop)
     data = prepare_measured(trace, config)
-    start, final, added, rounds = search(config, data, workers=workers, progress=progress, log=log)
-    if added:
-        verdict = "effects_found"
-    elif final.gap.score > STRUCTURED:
-        verdict = "unexplained"
-    else:
-        verdict = "nothing_missing"
-    return Result(verdict, start, final, added, rounds, warnings), data
+    result = search(config, data, workers=workers, progress=progress, log=log, warnings=warnings)
+    return result, data

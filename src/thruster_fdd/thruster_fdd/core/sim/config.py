@@ -7,6 +7,7 @@ YAML layout (see docs/simulator.md)::
     params: {k_e: ..., r_ohm: ..., ...}
     effects: {dead_time: {delay_s: 0.55}, deadband: {width: 0.0625}, ...}
     measurement: {rpm_noise: ..., ...}
+    structure: {esc_tau2_s: 0.1, i_idle_per_krpm_a: 0.05, regen: false}   # optional
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.safe_yaml import load_yaml
 from thruster_fdd.core.sim.effects import EFFECTS, Effect, canonical_order, make_effect
@@ -139,6 +141,39 @@ class Measurement:
 
 
 @dataclass(frozen=True)
+class Structure:
+    """Structural switches of the physics beyond the reference; the defaults are the reference.
+
+    Laws rather than values of one unit: ``perturb_unit`` leaves them as they are.
+
+    Attributes
+    ----------
+    esc_tau2_s : float
+        Time constant of a second ESC stage in cascade behind ``esc_lag``, s: 0 keeps the
+        first-order response, > 0 makes it second order (two real poles).
+    i_idle_per_krpm_a : float
+        Growth of the ESC's idle bus current with speed, A per 1000 rpm (switching and
+        commutation losses drawn from the bus): ``I = d i_m + i_idle_a + this |rpm| / 1000``.
+    regen : bool
+        True (reference): while the motor generates (``d i_m < 0``, braking under drive) its
+        current flows back to the bus. False: the ESC lets it coast instead (no motor torque,
+        no current back, bus current at the idle level), as ESCs without active braking do.
+    """
+
+    esc_tau2_s: float = 0.0
+    i_idle_per_krpm_a: float = 0.0
+    regen: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("esc_tau2_s", "i_idle_per_krpm_a"):
+            _check_number("structure", name, getattr(self, name))
+            if not math.isfinite(getattr(self, name)):
+                raise BadInputError(f"structure.{name} must be finite, got {getattr(self, name)}")
+        if not isinstance(self.regen, bool):
+            raise BadInputError("structure.regen must be true or false")
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """A complete simulator configuration.
 
@@ -155,6 +190,8 @@ class SimConfig:
     spread : float
         Unit-to-unit spread: relative standard deviation applied by seed to every physical
         parameter (0 gives the nominal unit).
+    structure : Structure
+        Structural switches of the physics (defaults: the reference physics).
     """
 
     name: str
@@ -162,6 +199,7 @@ class SimConfig:
     effects: tuple[Effect, ...] = ()
     measurement: Measurement = field(default_factory=Measurement)
     spread: float = 0.0
+    structure: Structure = field(default_factory=Structure)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "effects", canonical_order(tuple(self.effects)))
@@ -253,7 +291,9 @@ def config_from_dict(data: Any, *, origin: str = "config") -> SimConfig:
     """Build a configuration from the YAML mapping layout (ValueError with the reason if bad)."""
     if not isinstance(data, dict):
         raise BadInputError(f"{origin}: expected a mapping with name, params, effects, measurement")
-    unknown = sorted(set(data) - {"name", "params", "effects", "measurement", "spread"})
+    unknown = sorted(
+        set(data) - {"name", "params", "effects", "measurement", "spread", "structure"}
+    )
     if unknown:
         raise BadInputError(f"{origin}: unknown top-level key(s) {unknown}")
     if "params" not in data or not isinstance(data["params"], dict):
@@ -261,9 +301,13 @@ def config_from_dict(data: Any, *, origin: str = "config") -> SimConfig:
     effects_data = data.get("effects") or {}
     if not isinstance(effects_data, dict):
         raise BadInputError(f"{origin}: 'effects' must map effect names to parameter mappings")
+    for key in ("measurement", "structure"):
+        if not isinstance(data.get(key) or {}, dict):
+            raise BadInputError(f"{origin}: {key!r} must be a mapping")
     try:
         params = ThrusterParams(**data["params"])
         measurement = Measurement(**(data.get("measurement") or {}))
+        structure = Structure(**(data.get("structure") or {}))
     except TypeError as exc:
         raise BadInputError(f"{origin}: {exc}") from exc
     effects = tuple(
@@ -276,18 +320,25 @@ def config_from_dict(data: Any, *, origin: str = "config") -> SimConfig:
         effects=effects,
         measurement=measurement,
         spread=float(data.get("spread", 0.0)),
+        structure=structure,
     )
 
 
 def config_to_dict(config: SimConfig) -> dict[str, Any]:
-    """Return the YAML mapping layout of ``config`` (inverse of ``config_from_dict``)."""
-    return {
+    """Return the YAML mapping layout of ``config`` (inverse of ``config_from_dict``).
+
+    ``structure`` is written only when it differs from the reference physics.
+    """
+    out = {
         "name": config.name,
         "spread": float(config.spread),
         "params": {k: float(v) for k, v in asdict(config.params).items()},
         "effects": {e.name: e.params() for e in config.effects},
         "measurement": asdict(config.measurement),
     }
+    if config.structure != Structure():
+        out["structure"] = asdict(config.structure)
+    return out
 
 
 def load_config(source: str | Path) -> SimConfig:
@@ -318,7 +369,8 @@ def load_config(source: str | Path) -> SimConfig:
 
 
 def dump_config(config: SimConfig, path: str | Path) -> None:
-    """Write ``config`` as YAML that ``load_config`` reads back to an equal configuration."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(config_to_dict(config), sort_keys=False))
+    """Write ``config`` as YAML that ``load_config`` reads back to an equal configuration.
+
+    Atomic (``core.atomic``): the file appears whole or not at all.
+    """
+    write_text(path, yaml.safe_dump(config_to_dict(config), sort_keys=False))

@@ -5,8 +5,10 @@ it is stepped through a command history without measurement noise: the same dead
 deadband, ESC lag and slew limit, current limit (``plant.limited_duty``), voltage sag,
 Coulomb and viscous friction, reverse ``k_q``, speed-dependent resistance and ESC drive loss, the
 same 10 ms substeps and the same order of floating-point operations, so the two agree to
-rounding. The discrepancy workflow calls it thousands of times per run (least-squares Jacobians
-by finite differences), where the reference's Python loop costs about 0.2 s per 6000 samples.
+rounding; also every switch of ``SimConfig.structure`` (second ESC stage, speed-dependent idle
+current, coasting instead of regeneration). The discrepancy workflow calls it thousands of
+times per run (least-squares Jacobians by finite differences), where the reference's Python
+loop costs about 0.2 s per 6000 samples.
 
 Not covered (the workflow does not need them): conditions other than a healthy unit (the
 once-per-revolution ripple of a broken blade), unit spread, the winding temperature, thrust and
@@ -46,40 +48,53 @@ def _integrate(
     duration: float,
     w: float,
     d: float,
+    d1: float,
     vb: float,
-) -> tuple[float, float, float]:
-    """``ThrusterSimulator._integrate``: state (w rad/s, duty, bus V) after ``duration`` s."""
+) -> tuple[float, float, float, float]:
+    """``ThrusterSimulator._integrate``: state (w rad/s, duty, first ESC stage, bus V) after
+    ``duration`` s."""
     if duration <= 0.0:
-        return w, d, vb
+        return w, d, d1, vb
     k_e, r0, rs, vsat, inertia = pl.k_e, pl.r_ohm, pl.r_speed, pl.v_sat, pl.inertia
     k_q, k_q_rev, i_idle, tc, b = pl.k_q, pl.k_q_rev, pl.i_idle, pl.coulomb, pl.viscous
     width, tau, slew, r_int, i_max = pl.width, pl.tau, pl.slew, pl.r_int, pl.i_max
+    tau2, i_idle_speed, regen = pl.tau2, pl.i_idle_speed, pl.regen
     mag = abs(u)
     target = 0.0 if mag <= width else math.copysign((mag - width) / (1.0 - width), u)
     n = max(1, math.ceil(duration / MAX_SUBSTEP_S - 1e-9))
     h = duration / n
     alpha = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
+    alpha2 = 1.0 - math.exp(-h / tau2) if tau2 > 0.0 else 1.0
     max_dd = slew * h
     j_h = inertia / h
     for _ in range(n):
-        dd = (target - d) * alpha
+        if tau2 > 0.0:
+            d1 += (target - d1) * alpha
+            dd = (d1 - d) * alpha2
+        else:
+            dd = (target - d) * alpha
         # Python's max(-max_dd, min(max_dd, dd)), argument order kept
         step = dd if dd < max_dd else max_dd
         d += step if step > -max_dd else -max_dd
         ve = vb / (1.0 + vb / vsat)
         reff = r0 + rs * abs(w)
         de = d
-        ibus = d * (d * ve - k_e * w) / reff + i_idle
+        motor = 1.0
+        drawn = d * (d * ve - k_e * w) / reff
+        if regen == 0.0 and drawn < 0.0:
+            motor = 0.0
+            drawn = 0.0
+        ibus = drawn + i_idle + i_idle_speed * abs(w)
         if ibus > i_max:
             de = _limited_duty(pl, d, ve, w, reff)
             ibus = i_max
         vb = v_supply - r_int * ibus
         aw = abs(w)
         kq = k_q if w >= 0.0 else k_q_rev
-        a = j_h + k_e * k_e / reff + 2.0 * kq * aw + b
-        rhs = j_h * w + k_e * de * ve / reff + kq * w * aw
+        a = j_h + motor * k_e * k_e / reff + 2.0 * kq * aw + b
+        rhs = j_h * w + motor * k_e * de * ve / reff + kq * w * aw
         w = 0.0 if abs(rhs) <= tc else (rhs - math.copysign(tc, rhs)) / a
-    return w, d, vb
+    return w, d, d1, vb
 
 
 @njit(cache=True)
@@ -87,6 +102,7 @@ def _free_run(pl: Plant, t: np.ndarray, command: np.ndarray, supply: np.ndarray)
     """The whole run of the unit ``pl``; returns rpm, bus A, bus V, shape (3, n)."""
     k_e, r0, rs, vsat, i_idle = pl.k_e, pl.r_ohm, pl.r_speed, pl.v_sat, pl.i_idle
     delay, r_int, i_max = pl.delay, pl.r_int, pl.i_max
+    i_idle_speed, regen = pl.i_idle_speed, pl.regen
     n = len(t)
     out = np.empty((3, n))
     # Dead-time history: (time the command was set, command); entries before `head` expired.
@@ -95,7 +111,7 @@ def _free_run(pl: Plant, t: np.ndarray, command: np.ndarray, supply: np.ndarray)
     hist_t[0] = -math.inf
     hist_u[0] = 0.0
     head, count = 0, 1
-    w, d, vb = 0.0, 0.0, supply[0]
+    w, d, d1, vb = 0.0, 0.0, 0.0, supply[0]
     now = 0.0
     previous = t[0]
     for i in range(n):
@@ -104,7 +120,7 @@ def _free_run(pl: Plant, t: np.ndarray, command: np.ndarray, supply: np.ndarray)
         u = min(1.0, max(-1.0, command[i]))
         vs = supply[i]
         if delay == 0.0:
-            w, d, vb = _integrate(pl, vs, u, dt, w, d, vb)
+            w, d, d1, vb = _integrate(pl, vs, u, dt, w, d, d1, vb)
         else:
             t1 = now + dt
             if hist_u[count - 1] != u:
@@ -118,7 +134,7 @@ def _free_run(pl: Plant, t: np.ndarray, command: np.ndarray, supply: np.ndarray)
                 end = hist_t[j + 1] + delay if j + 1 < count else math.inf
                 seg_end = t1 if t1 < end else end
                 if seg_end > s:
-                    w, d, vb = _integrate(pl, vs, hist_u[j], seg_end - s, w, d, vb)
+                    w, d, d1, vb = _integrate(pl, vs, hist_u[j], seg_end - s, w, d, d1, vb)
                     s = seg_end
                 if s >= t1:
                     break
@@ -126,7 +142,10 @@ def _free_run(pl: Plant, t: np.ndarray, command: np.ndarray, supply: np.ndarray)
         # ThrusterSimulator._measure, noise-free: the bus state at the end of the step.
         ve = vb / (1.0 + vb / vsat)
         reff = r0 + rs * abs(w)
-        ibus = d * (d * ve - k_e * w) / reff + i_idle
+        drawn = d * (d * ve - k_e * w) / reff
+        if regen == 0.0 and drawn < 0.0:
+            drawn = 0.0
+        ibus = drawn + i_idle + i_idle_speed * abs(w)
         if ibus > i_max:
             ibus = i_max
         vb = vs - r_int * ibus

@@ -1,9 +1,11 @@
 """The reference thruster simulator (docs/simulator.md; docs/contracts.md, "Reference physics").
 
-Signal path, in order: dead time -> deadband -> ESC duty (lag, slew limit) -> quasi-static motor
-current -> rotor -> bus current (current limit) -> bus voltage (sag) -> thrust; then the
-measurement model. ``ThrusterSimulator`` is the only stateful object; ``simulate`` runs it over a
-command history and returns a ``Trace``.
+Signal path, in order: dead time -> deadband -> ESC duty (lag, optional second stage, slew
+limit) -> quasi-static motor current -> rotor -> bus current (current limit) -> bus voltage
+(sag) -> thrust; then the measurement model (``SimConfig.structure`` switches the second ESC
+stage, a speed-dependent idle current and coasting instead of regeneration).
+``ThrusterSimulator`` is the only stateful object; ``simulate`` runs it over a command history
+and returns a ``Trace``.
 """
 
 from __future__ import annotations
@@ -135,6 +137,7 @@ class ThrusterSimulator:
         self._t = 0.0
         self._w = 0.0
         self._d = 0.0
+        self._d1 = 0.0
         self._theta = 0.0
         self._vbus = pl.v_supply
         self._temp = self.unit.params.water_temp_c
@@ -201,31 +204,43 @@ class ThrusterSimulator:
         n = max(1, math.ceil(duration / MAX_SUBSTEP_S - 1e-9))
         h = duration / n
         alpha = 1.0 - math.exp(-h / pl.tau) if pl.tau > 0.0 else 1.0
+        alpha2 = 1.0 - math.exp(-h / pl.tau2) if pl.tau2 > 0.0 else 1.0
         max_dd = pl.slew * h
         k_e, r0, rs, vsat, vs = pl.k_e, pl.r_ohm, pl.r_speed, pl.v_sat, pl.v_supply
         j_h = pl.inertia / h
         i_idle, i_max, r_int = pl.i_idle, pl.i_max, pl.r_int
         tc, b = pl.coulomb, pl.viscous
-        w, d, vb, theta = self._w, self._d, self._vbus, self._theta
+        w, d, d1, vb, theta = self._w, self._d, self._d1, self._vbus, self._theta
         for _ in range(n):
-            dd = (target - d) * alpha
+            if pl.tau2 > 0.0:
+                # Second-order ESC: the lag's output d1 drives a second stage.
+                d1 += (target - d1) * alpha
+                dd = (d1 - d) * alpha2
+            else:
+                dd = (target - d) * alpha
             d += max(-max_dd, min(max_dd, dd))
             ve = vb / (1.0 + vb / vsat)
             reff = r0 + rs * abs(w)
             de = d
-            ibus = d * (d * ve - k_e * w) / reff + i_idle
+            motor = 1.0
+            drawn = d * (d * ve - k_e * w) / reff
+            if pl.regen == 0.0 and drawn < 0.0:
+                # No regeneration: the motor would feed the bus, so the ESC lets it coast.
+                motor = 0.0
+                drawn = 0.0
+            ibus = drawn + i_idle + pl.i_idle_speed * abs(w)
             if ibus > i_max:
                 de = limited_duty(pl, d, ve, w, reff)
                 ibus = i_max
             vb = vs - r_int * ibus
             aw = abs(w)
             kq = pl.k_q if w >= 0.0 else pl.k_q_rev
-            a = j_h + k_e * k_e / reff + 2.0 * kq * aw + b
-            rhs = j_h * w + k_e * de * ve / reff + kq * w * aw
+            a = j_h + motor * k_e * k_e / reff + 2.0 * kq * aw + b
+            rhs = j_h * w + motor * k_e * de * ve / reff + kq * w * aw
             w_new = 0.0 if abs(rhs) <= tc else (rhs - math.copysign(tc, rhs)) / a
             theta += 0.5 * h * (w + w_new)
             w = w_new
-        self._w, self._d, self._vbus = w, d, vb
+        self._w, self._d, self._d1, self._vbus = w, d, d1, vb
         self._theta = math.fmod(theta, 2.0 * math.pi)
 
     def _noise(self) -> tuple[list[float], list[float]]:
@@ -245,13 +260,17 @@ class ThrusterSimulator:
         ve = self._vbus / (1.0 + self._vbus / pl.v_sat)
         reff = pl.r_ohm + pl.r_speed * abs(w)
         de = d
-        ibus = d * (d * ve - pl.k_e * w) / reff + pl.i_idle
+        drawn = d * (d * ve - pl.k_e * w) / reff
+        coasting = pl.regen == 0.0 and drawn < 0.0
+        if coasting:
+            drawn = 0.0
+        ibus = drawn + pl.i_idle + pl.i_idle_speed * abs(w)
         if ibus > pl.i_max:
             de = limited_duty(pl, d, ve, w, reff)
             ibus = pl.i_max
         vbus = pl.v_supply - pl.r_int * ibus
         self._vbus = vbus
-        i_m = (de * ve - pl.k_e * w) / reff
+        i_m = 0.0 if coasting else (de * ve - pl.k_e * w) / reff
         kq = pl.k_q if w >= 0.0 else pl.k_q_rev
         rpm = w * RAD_S_TO_RPM
         if pl.ripple > 0.0:

@@ -142,7 +142,9 @@ class Plant(NamedTuple):
     """Flattened numbers of one unit in one condition, in SI units.
 
     A named tuple of floats, so the compiled free run (``sim.freerun``) takes it as it is and
-    reads the same field names as the Python integrator.
+    reads the same field names as the Python integrator. The last three come from
+    ``SimConfig.structure``: ``tau2`` (s, second ESC stage; 0 none), ``i_idle_speed`` (idle
+    current growth, A s/rad) and ``regen`` (1.0 regenerative braking, 0.0 coasting).
     """
 
     k_e: float
@@ -165,6 +167,9 @@ class Plant(NamedTuple):
     r_int: float
     i_max: float
     v_supply: float
+    tau2: float
+    i_idle_speed: float
+    regen: float
 
 
 def make_plant(unit: SimConfig, spec: ConditionSpec, voltage: float | None) -> Plant:
@@ -199,6 +204,9 @@ def make_plant(unit: SimConfig, spec: ConditionSpec, voltage: float | None) -> P
         r_int=get("voltage_sag", "r_internal_ohm", 0.0),
         i_max=get("current_limit", "i_max_a", math.inf),
         v_supply=spec.supply_v if voltage is None else float(voltage),
+        tau2=unit.structure.esc_tau2_s,
+        i_idle_speed=unit.structure.i_idle_per_krpm_a * RAD_S_TO_RPM / 1000.0,
+        regen=1.0 if unit.structure.regen else 0.0,
     )
 
 
@@ -208,6 +216,7 @@ def limited_duty(pl: Plant, d: float, ve: float, w: float, reff: float) -> float
     Plain arithmetic on floats: the reference integrator calls it, and ``sim.freerun`` compiles
     the same function for its kernel.
     """
-    disc = (pl.k_e * w) ** 2 + 4.0 * ve * reff * (pl.i_max - pl.i_idle)
+    idle = pl.i_idle + pl.i_idle_speed * abs(w)
+    disc = (pl.k_e * w) ** 2 + 4.0 * ve * reff * (pl.i_max - idle)
     root = math.sqrt(max(disc, 0.0))
     return (pl.k_e * w + math.copysign(root, d)) / (2.0 * ve)

@@ -38,7 +38,8 @@ def _static(
         return np.where(moving, 0.5 * (lo + hi), 0.0)
 
     def bus(duty: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return duty * (duty * ve - pl.k_e * w) / (pl.r_ohm + pl.r_speed * w) + pl.i_idle
+        drawn = duty * (duty * ve - pl.k_e * w) / (pl.r_ohm + pl.r_speed * w)
+        return drawn + pl.i_idle + pl.i_idle_speed * w
 
     w = speed(d)
     ibus = bus(d, w)
