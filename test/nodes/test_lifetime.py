@@ -118,14 +118,21 @@ def test_a_teardown_that_hangs_ends_the_process_after_its_hooks(tmp_path: Path) 
 def test_stop_children_kills_and_names_a_child_that_ignores_ctrl_c() -> None:
     from thruster_fdd.lifetime import stop_children
 
-    polite = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    # Both say when they are up: a Ctrl-C during the interpreter's start-up is caught by site's
+    # .pth handling, and the "polite" child then sleeps on (seen once on a loaded machine).
+    polite = subprocess.Popen(
+        [sys.executable, "-c", "import time; print('ready', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE,
+    )
     stubborn = subprocess.Popen(
         [sys.executable, "-c", "import signal, time; signal.signal(signal.SIGINT, "
          "signal.SIG_IGN); print('ready', flush=True); time.sleep(60)"],
         stdout=subprocess.PIPE,
     )  # fmt: skip
     try:
+        assert polite.stdout is not None
         assert stubborn.stdout is not None
+        assert polite.stdout.readline() == b"ready\n"
         assert stubborn.stdout.readline() == b"ready\n"
         killed = stop_children({"polite": polite, "stubborn": stubborn}, timeout_s=2.0)
         assert killed == ["stubborn"]
