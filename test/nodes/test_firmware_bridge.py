@@ -190,7 +190,9 @@ def test_a_stalled_host_is_caught_by_the_bridge_watchdog(rig: Rig) -> None:
     assert all(abs(p.width_us - 1700) <= 0.5 for p in held[1:])
     assert neutral
     assert all(abs(p.width_us - 1500) <= 0.5 for p in neutral)
-    frames = [f.frame.message for f in rig.bridge.frames if f.t > last + BRIDGE_TIMEOUT_S + WAKE_S]
+    # A snapshot: the co-simulation thread appends to the deque meanwhile.
+    after = last + BRIDGE_TIMEOUT_S + WAKE_S
+    frames = [f.frame.message for f in list(rig.bridge.frames) if f.t > after]
     assert any(f.status & StatusFlag.ESC_TIMEOUT for f in frames)
     rig.hold(0.5, 0.5)
     assert abs(list(rig.bridge.pulses)[-1].width_us - 1700) <= 0.5, "the host is back"
