@@ -146,10 +146,10 @@ class Recorder(Node):
             self._recorder = McapRecorder(self._bag_dir(), self._policy, self._metadata)
             for topic, (type_name, offered, type_hash) in self._topics.items():
                 self._recorder.add_topic(topic, type_name, offered, type_hash)
-            self._error = ""
+            self._recovered()
         except OSError as exc:
             self._recorder = None
-            self._error = f"cannot record to {self._output_dir}: {exc.strerror or exc}"
+            self._failed(f"cannot record to {self._output_dir}: {exc.strerror or exc}")
             self.get_logger().error(self._error)
 
     def _discover(self) -> None:
@@ -216,20 +216,27 @@ class Recorder(Node):
             return
         try:
             self._recorder.write(topic, type_name, data, time.time_ns())
-            if self._error_published:
-                self._error = ""
+            self._recovered()
         except OSError as exc:
             self._dropped += 1
             self._write_failed(exc)
 
     def _write_failed(self, exc: OSError) -> None:
         # The file is unusable (full disk, vanished folder): drop it, retry a new one later.
-        self._error = f"writing to {self._output_dir} failed: {exc.strerror or exc}"
-        self._error_published = False
+        self._failed(f"writing to {self._output_dir} failed: {exc.strerror or exc}")
         self.get_logger().error(self._error, throttle_duration_sec=5.0)
         if self._recorder is not None:
             self._recorder.abandon()
         self._retry_after = time.monotonic() + 1.0
+
+    def _failed(self, error: str) -> None:
+        self._error = error
+        self._error_published = False
+
+    def _recovered(self) -> None:
+        # A failure stays ERROR until one status said so, even if the next file works.
+        if self._error_published:
+            self._error = ""
 
     def _publish_diagnostics(self) -> None:
         received, since = self._window
@@ -244,7 +251,6 @@ class Recorder(Node):
                 self._write_failed(exc)
         if self._error:
             level, message = DiagnosticStatus.ERROR, self._error
-            # A failure stays ERROR until one status said so, even if the next file works.
             self._error_published = True
         else:
             level, message = DiagnosticStatus.OK, f"recording {len(self._subscribed)} topics"
