@@ -67,10 +67,23 @@ class Rig:
             self.port.write(data)
 
     def command(self, pulse_us: int, timeout_ms: int = 500) -> bytes:
-        data = encode_command(CommandFrame(pulse_us, timeout_ms), self.seq)
-        self.seq = (self.seq + 1) % 65536
-        self.send(data)
+        with self.lock:
+            data = encode_command(CommandFrame(pulse_us, timeout_ms), self.seq)
+            self.seq = (self.seq + 1) % 65536
+            self.port.write(data)
         return data
+
+    def set_target(self, pulse_us: int | None) -> None:
+        """Set what the commander repeats; once this returns it sends nothing older."""
+        with self.lock:
+            self.target = pulse_us
+
+    def repeat_target(self) -> None:
+        with self.lock:
+            if self.target is not None:
+                data = encode_command(CommandFrame(self.target, 3000), self.seq)
+                self.seq = (self.seq + 1) % 65536
+                self.port.write(data)
 
     def wait(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -109,10 +122,11 @@ class Rig:
 
 
 def _commander(rig: Rig, stop: threading.Event) -> None:
-    # A long bridge timeout: a test process slowed by a loaded machine must not trip it.
+    # A long bridge timeout (3 s): a test process slowed by a loaded machine must not trip it.
+    # The target is read and sent under the rig's lock: a repeat of an old target sent after a
+    # test's own command would override it (a command step never showed its pulse once in CI).
     while not stop.wait(0.05):
-        if rig.target is not None:
-            rig.command(rig.target, timeout_ms=3000)
+        rig.repeat_target()
 
 
 def _reader(rig: Rig, stop: threading.Event) -> None:
@@ -188,7 +202,7 @@ def test_telemetry_runs_at_the_configured_rate(rig: Rig) -> None:
 
 
 def test_readings_are_the_latest_esc_frame_within_the_wire_resolution(rig: Rig) -> None:
-    rig.target = 1700
+    rig.set_target(1700)
     start = rig.bridge.virtual_time
     rig.wait_virtual(3.0)
     served = [s for s in rig.bridge.served() if s.t_sent is not None and not s.fault]
@@ -217,7 +231,7 @@ def test_readings_are_the_latest_esc_frame_within_the_wire_resolution(rig: Rig) 
 
 
 def test_a_command_step_reaches_the_servo_within_one_frame_period(rig: Rig) -> None:
-    rig.target = None
+    rig.set_target(None)
     latencies = []
     for pulse in (1620, 1750, 1380, 1500, 1700):
         data = rig.command(pulse)
@@ -261,7 +275,7 @@ def test_the_bridge_watchdog_gives_neutral_when_commands_stop(rig: Rig) -> None:
 
 
 def test_noise_and_damaged_frames_on_the_host_link_are_not_commands(rig: Rig) -> None:
-    rig.target = 1600
+    rig.set_target(1600)
     rig.wait_virtual(0.2)
     start = rig.bridge.virtual_time
     rig.bridge.inject(cosim.HostNoise(256))
@@ -269,7 +283,7 @@ def test_noise_and_damaged_frames_on_the_host_link_are_not_commands(rig: Rig) ->
     damaged[7] ^= 0x01
     rig.send(bytes(damaged))
     truncated = encode_command(CommandFrame(1850, 500), 10)[:8]
-    rig.target = None
+    rig.set_target(None)
     time.sleep(0.1)  # the commander's last 1600 goes out before the frame under test
     resync = truncated + encode_command(CommandFrame(1620, 500), 11)
     rig.send(resync)
@@ -285,7 +299,7 @@ def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig
     """Valid commands behind truncated, corrupted, noisy and falsely synced bytes: the pulses
     the firmware applies are the commands the host's FrameDecoder finds in the same stream."""
     rng = np.random.default_rng(3)
-    rig.target = None
+    rig.set_target(None)
     time.sleep(0.1)
     start = rig.bridge.virtual_time
     before = rig.pulses()[-1].width_us
@@ -342,7 +356,7 @@ def _flagged_window(rig: Rig, fault: str, n: int = 1) -> tuple[cosim.ServedFrame
 
 @pytest.mark.parametrize("fault", ["corrupt", "implausible"])
 def test_a_bad_esc_frame_is_flagged_and_never_forwarded(rig: Rig, fault: str) -> None:
-    rig.target = 1600
+    rig.set_target(1600)
     bad, frames = _flagged_window(rig, fault)
     done = bad.t_sent + HOTT_FRAME_S
     next_good = min(
@@ -367,7 +381,7 @@ def test_a_bad_esc_frame_is_flagged_and_never_forwarded(rig: Rig, fault: str) ->
 
 
 def test_a_silent_esc_is_a_fault_that_gives_neutral(rig: Rig) -> None:
-    rig.target = 1650
+    rig.set_target(1650)
     rig.wait_virtual(0.2)
     start = rig.bridge.virtual_time
     rig.bridge.inject(cosim.EscSilence(1.0))
@@ -388,7 +402,7 @@ def test_a_silent_esc_is_a_fault_that_gives_neutral(rig: Rig) -> None:
 
 
 def test_a_hung_main_loop_is_reset_by_the_watchdog_into_neutral(rig: Rig) -> None:
-    rig.target = 1700
+    rig.set_target(1700)
     rig.wait_virtual(0.3)
     start = rig.bridge.virtual_time
     rig.bridge.inject(cosim.HangMainLoop())
@@ -405,7 +419,7 @@ def test_a_hung_main_loop_is_reset_by_the_watchdog_into_neutral(rig: Rig) -> Non
     assert first.status & StatusFlag.RESET
     rig.wait_virtual(1.5)
     assert abs(rig.pulses()[-1].width_us - 1700) <= 0.5, "commands apply again after arming"
-    rig.target = None
+    rig.set_target(None)
 
 
 def test_kiss_telemetry_build_reads_the_esc_frames(firmware_images: dict, tmp_path: Path) -> None:
