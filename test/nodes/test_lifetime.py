@@ -79,6 +79,39 @@ def test_node_exits_promptly_on_ctrl_c() -> None:
         proc.kill()
 
 
+# Ctrl-C after init_rclpy, then a stretch of Python as a teardown would run: rclpy shuts the
+# context down and no KeyboardInterrupt lands in the stretch.
+CTRL_C_AFTER_INIT = textwrap.dedent(
+    """
+    import os, signal, time
+    import rclpy
+    from thruster_fdd.nodes.common import init_rclpy
+
+    init_rclpy(None)
+    os.kill(os.getpid(), signal.SIGINT)
+    end = time.monotonic() + 0.5
+    while time.monotonic() < end:
+        pass
+    print("context ok" if rclpy.ok() else "context shut down")
+    """
+)
+
+
+@pytest.mark.parametrize("init", ["init_rclpy", "rclpy.init"])
+def test_ctrl_c_ends_the_context_without_a_keyboard_interrupt_in_teardown(init: str) -> None:
+    script = CTRL_C_AFTER_INIT
+    if init == "rclpy.init":  # the peer: Python's default handler raises in the stretch
+        script = script.replace("init_rclpy(None)", "rclpy.init()")
+    proc = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=30
+    )
+    if init == "init_rclpy":
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert proc.stdout.strip() == "context shut down"
+    else:
+        assert "KeyboardInterrupt" in proc.stderr
+
+
 # A node whose destroy_node never returns, as rclpy's can after a Ctrl-C inside a callback.
 STUCK = textwrap.dedent(
     """

@@ -114,7 +114,12 @@ def load_yaml(text: str, source: str) -> Any:
         raise BadInputError(f"{source}{line}: not valid YAML ({problem})") from None
 
 
-class _PlainDumper(yaml.SafeDumper):
+# libyaml's emitter when PyYAML has it: the same text, five times faster (the recorder rewrites
+# its bag's metadata.yaml every second: 41 ms of pure-Python YAML at 8 thrusters).
+_BaseDumper: type = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+
+class _PlainDumper(_BaseDumper):
     """A safe dumper that writes an object seen twice in full instead of as an alias, so what
     it writes :func:`load_yaml` reads."""
 

@@ -195,6 +195,27 @@ def spin_until(
     return True
 
 
+def init_rclpy(args: list[str] | None) -> None:
+    """``rclpy.init(args=args)`` for a node process, with a Ctrl-C that ends only the spin.
+
+    rclpy's SIGINT handler shuts the context down, which ends the spin, and then calls the
+    handler installed before it; Python's default one raises KeyboardInterrupt at whatever line
+    runs next, which is in the teardown (seen: at ``release_and_destroy``'s first line, so the
+    recorder never finished its bag). So the handler before rclpy's only notes the signal; one
+    that came before ``rclpy.init`` returned is raised here as KeyboardInterrupt.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        If Ctrl-C came while rclpy was starting.
+    """
+    interrupted: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, _frame: interrupted.append(signum))
+    rclpy.init(args=args)
+    if interrupted:
+        raise KeyboardInterrupt
+
+
 def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
     """Run one node until Ctrl-C; exit 1 with the reason when it cannot start (ValueError).
 
@@ -207,7 +228,11 @@ def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
     except ValueError as exc:
         print(f"{factory.__name__}: cannot start: {exc}", file=sys.stderr)
         sys.exit(1)
-    rclpy.init(args=args)
+    try:
+        init_rclpy(args)
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return
     try:
         node = factory()
     except ValueError as exc:
@@ -240,10 +265,9 @@ def release_and_destroy(executors: Iterable[Any], nodes: Iterable[Node]) -> None
     Python signal handler or thread could never run. The nodes' ``shutdown()`` hooks (files
     closed, neutral commands sent) come before anything that can hang.
 
-    SIGINT is ignored from here on: rclpy's handler ends the spin at once, but Python's own
-    KeyboardInterrupt for the same Ctrl-C may still be pending and would land inside a hook
-    (seen: a recorder stopped in the middle of finishing its bag's metadata), as would a second
-    Ctrl-C; the alarm bounds the teardown instead.
+    SIGINT is ignored from here on: a second Ctrl-C would land inside a hook (seen: a recorder
+    stopped in the middle of finishing its bag's metadata; :func:`init_rclpy` keeps the first
+    one from raising at all); the alarm bounds the teardown instead.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGALRM, signal.SIG_DFL)
