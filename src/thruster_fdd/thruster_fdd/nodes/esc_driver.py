@@ -281,11 +281,8 @@ class EscDriver(LifecycleNode):
         self._release()
         return TransitionCallbackReturn.SUCCESS
 
-    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._active = False
-        self._write_command(0.0)
-        self._release()
-        return TransitionCallbackReturn.SUCCESS
+    on_error = on_shutdown
+    """An error in a transition ends like a shutdown: neutral to the bridge, port closed."""
 
     def _release(self) -> None:
         """Close the port and destroy what configure made (back to unconfigured)."""
