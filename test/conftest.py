@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -19,6 +20,11 @@ def pytest_configure(config: pytest.Config) -> None:
     # DDS must never leave this machine, whoever runs pytest.
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+    # A shell that runs pytest in the background (`cmd &`) starts it with Ctrl-C ignored, and
+    # every process a test starts would inherit that: nodes that ignore SIGINT, a launch that
+    # never ends (seen: six failures in a full suite run so). A handler is reset to the
+    # default in a child, an ignored signal is not.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
