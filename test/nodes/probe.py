@@ -12,12 +12,13 @@ from __future__ import annotations
 import math
 import subprocess
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from thruster_fdd.lifetime import node_command
 from thruster_fdd.nodes.probe import Probe
 
-__all__ = ["Probe", "non_finite_fields", "start_node"]
+__all__ = ["DriverWatch", "Probe", "non_finite_fields", "start_node", "watch_driver"]
 
 
 def start_node(
@@ -42,3 +43,38 @@ def non_finite_fields(msg: Any, prefix: str = "") -> list[str]:
         elif hasattr(value, "get_fields_and_field_types"):
             bad += non_finite_fields(value, f"{prefix}{name}.")
     return bad
+
+
+@dataclass
+class DriverWatch:
+    """A probe's side of one ESC driver: its command publisher and what the driver published
+    (lists the probe's subscriptions append to)."""
+
+    command_pub: Any
+    telemetry: list = field(default_factory=list)
+    diagnostics: list = field(default_factory=list)
+
+
+def watch_driver(probe: Probe, namespace: str, thruster_id: str) -> DriverWatch:
+    """Publish commands to the driver in ``namespace`` and collect its telemetry and its own
+    ``/diagnostics`` status (``thruster_fdd: esc <thruster_id>``)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
+
+    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    node = probe.node
+    watch = DriverWatch(
+        node.create_publisher(ThrusterCommand, f"{namespace}/esc/command", reliable)
+    )
+    node.create_subscription(
+        EscTelemetry, f"{namespace}/esc/telemetry", watch.telemetry.append, qos_profile_sensor_data
+    )
+    name = f"thruster_fdd: esc {thruster_id}"
+    node.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda msg: watch.diagnostics.extend(s for s in msg.status if s.name == name),
+        reliable,
+    )
+    return watch

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pytest
-from probe import Probe, non_finite_fields, start_node
+from probe import Probe, non_finite_fields, start_node, watch_driver
 
 from thruster_fdd.core.bridge.emulator import (
     BridgeEmulator,
@@ -83,10 +83,6 @@ class Rig:
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-    from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
-
     link_path = tmp_path_factory.mktemp("pty") / "it.tty"
     simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=3)
     emulator = BridgeEmulator(simulator, link_path, EmulatorSettings(rate_hz=RATE_HZ))
@@ -108,22 +104,8 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         },
     )
     probe = Probe("probe")
-    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    r = Rig(
-        emulator,
-        driver,
-        probe,
-        probe.node.create_publisher(ThrusterCommand, f"{NS}/esc/command", reliable),
-    )
-    probe.node.create_subscription(
-        EscTelemetry, f"{NS}/esc/telemetry", r.telemetry.append, qos_profile_sensor_data
-    )
-    probe.node.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == "thruster_fdd: esc it"),
-        reliable,
-    )
+    watch = watch_driver(probe, NS, "it")
+    r = Rig(emulator, driver, probe, watch.command_pub, watch.telemetry, watch.diagnostics)
     try:
         for transition in ("configure", "activate"):
             assert change_states(probe.node, probe.executor, [DRIVER], transition, 30.0) == {}

@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
 import pytest
-from probe import Probe, start_node
+from probe import Probe, start_node, watch_driver
 
 from thruster_fdd.core.bridge import firmware_cosim as cosim
 from thruster_fdd.core.bridge import hott
@@ -80,10 +80,6 @@ def _quiet_t100() -> object:
 
 @pytest.fixture(scope="module")
 def rig(firmware_images: dict, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-    from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
-
     link = tmp_path_factory.mktemp("pty") / "fw.tty"
     simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=7)
     bridge = cosim.FirmwareBridge(simulator, link, firmware_images["hott"], seed=2)
@@ -106,22 +102,8 @@ def rig(firmware_images: dict, tmp_path_factory: pytest.TempPathFactory) -> Iter
         },
     )
     probe = Probe("firmware_probe")
-    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    r = Rig(
-        bridge,
-        driver,
-        probe,
-        probe.node.create_publisher(ThrusterCommand, f"{NS}/esc/command", reliable),
-    )
-    probe.node.create_subscription(
-        EscTelemetry, f"{NS}/esc/telemetry", r.telemetry.append, qos_profile_sensor_data
-    )
-    probe.node.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda msg: r.diagnostics.extend(s for s in msg.status if s.name == "thruster_fdd: esc fw"),
-        reliable,
-    )
+    watch = watch_driver(probe, NS, "fw")
+    r = Rig(bridge, driver, probe, watch.command_pub, watch.telemetry, watch.diagnostics)
     try:
         assert r.spin_until(lambda: len(r.telemetry) >= 20, 30.0), "no telemetry from driver"
         assert r.spin_until(lambda: bridge.virtual_time > 2.3, 10.0), "the bridge is arming"
