@@ -6,9 +6,7 @@ of the set from /proc, and prints CPU (cores: CPU seconds per wall second over t
 interval) and resident memory (RSS; PSS, which shares library pages between processes, in
 brackets) of
 
-- the vehicle set: ESC drivers, models, health node and recorder — what runs on a vehicle
-  (the drivers, models and health node share the ``vehicle`` container; a health process of its
-  own, as in earlier layouts, is counted as ``health``);
+- the vehicle set: ESC drivers, models, health node and recorder — what runs on a vehicle;
 - the simulation harness: emulators and command players;
 - ``up`` itself (its live table).
 

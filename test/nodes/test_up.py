@@ -39,8 +39,8 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> No
         for folder in ("nominal", "classifier")
     )
     # An emulator per thruster; one container with the command players; the vehicle process
-    # (drivers, exported model stages and the health node); the recorder.
-    expected = 2 + 3
+    # (drivers and exported model stages); the health node; the recorder.
+    expected = 2 + 4
     deadline = time.monotonic() + 10.0  # a loaded machine starts them in seconds
     children = _children_of(proc.pid)
     while len(children) < expected and time.monotonic() < deadline:

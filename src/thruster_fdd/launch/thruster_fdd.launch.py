@@ -6,8 +6,7 @@
 Every ``/thruster/<id>/esc_driver`` entry of the parameters file (standard ``node:
 ros__parameters:`` form; the package's ``config/thruster_fdd.yaml`` by default) is a thruster:
 its ESC driver, nominal model and classifier run in one ``container`` process with every other
-thruster's and the vehicle's health node (``/thruster_fdd/health``; its parameters under
-``/health``), as ``thruster-fdd up`` runs them, and the recorder in its own. With ``autostart``
+thruster's (as ``thruster-fdd up`` runs them), and the recorder in its own. With ``autostart``
 the drivers configure and activate themselves; ``autostart:=false`` leaves them unconfigured
 for a lifecycle manager of your own (``<node>/change_state``).
 """
@@ -23,7 +22,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironment
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-STAGES = ("esc_driver", "nominal_model", "classifier", "health")
+STAGES = ("esc_driver", "nominal_model", "classifier")
 
 
 def thruster_ids(params_file: str) -> list[str]:

@@ -433,27 +433,20 @@ def process_commands(
 ) -> dict[str, list[str]]:
     """The command line of every process but the recorder (``recorder_command``), by name.
 
-    ``vehicle``: one container with every thruster's driver, the exported model stages and
-    the vehicle's health node (one reference thruster type for the effectiveness estimates: the
-    first thruster's preset). Per simulated thruster an emulator
+    ``vehicle``: one container with every thruster's driver and the exported model stages;
+    ``health``: the vehicle's health node (one reference thruster type for the effectiveness
+    estimates: the first thruster's preset). Per simulated thruster an emulator
     ``<id>-emulator`` (the Python emulator or the bridge firmware); one ``commands`` container
     with their command players.
     """
     ids = [p.id for p in plans]
     ros_args = ["--ros-args", "--params-file", str(params_file)]
     container = [sys.executable, "-m", "thruster_fdd.nodes.container"]
-    kinds = ["esc_driver", *(st.node for st in exported_stages(models)), "health"]
-    out = {
-        "vehicle": [
-            *container,
-            *kinds,
-            "--thrusters",
-            *ids,
-            "-p",
-            f"health:preset={plans[0].preset}",
-            *ros_args,
-        ]
-    }
+    kinds = ["esc_driver", *(st.node for st in exported_stages(models))]
+    out = {"vehicle": [*container, *kinds, "--thrusters", *ids, *ros_args]}
+    out["health"] = node_command(
+        "health", "/", {"thruster_ids": f"[{','.join(ids)}]", "preset": plans[0].preset}
+    )
     simulated = [p for p in plans if p.port is None]
     for plan in simulated:
         emulate = [sys.executable, "-m", "thruster_fdd.cli", "emulate"]

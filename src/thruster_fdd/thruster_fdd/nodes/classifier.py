@@ -19,7 +19,6 @@ only (a change is refused).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -101,7 +100,6 @@ class ClassifierNode(Node):
         self._stale = False
         self._received = 0
         self._source_id = ""
-        self._local_subscribers: list[Callable[[Diagnosis], None]] = []
         self._pub = self.create_publisher(
             Diagnosis, "fdd/diagnosis", RELIABLE_10, event_callbacks=NO_PUB_EVENTS
         )
@@ -162,11 +160,6 @@ class ClassifierNode(Node):
             self._sub = None
         source.add_local_subscriber(self._on_residual)
 
-    def add_local_subscriber(self, callback: Callable[[Diagnosis], None]) -> None:
-        """Also hand every published diagnosis to ``callback``, in this process, before the DDS
-        write (intra-process delivery, as ``NominalModelNode.add_local_subscriber``)."""
-        self._local_subscribers.append(callback)
-
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
@@ -218,8 +211,6 @@ class ClassifierNode(Node):
         else:
             out.header.stamp = self.get_clock().now().to_msg()
         out.header.frame_id = self._id
-        for callback in self._local_subscribers:
-            callback(out)
         self._pub.publish(out)
 
     def _publish_status(self) -> None:

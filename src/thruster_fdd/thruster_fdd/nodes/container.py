@@ -1,8 +1,5 @@
 """Container: nodes of one or more kinds, one of each per thruster, in a single process.
 
-Vehicle-level kinds (``health``) get one node for all ``--thrusters``, fed by direct calls from
-each thruster's model stages in the container.
-
 ``thruster-fdd up`` runs the vehicle's nodes of all thrusters in one container — the ESC drivers
 (lifecycle nodes sharing one serial reader thread), the nominal models and the classifiers — so
 the interpreter, rclpy, the model code and numba's compiled kernels are loaded once, not once per
@@ -12,8 +9,7 @@ thruster's samples go from its driver to its nominal model to its classifier by 
 DDS) — the ROS composition idea with plain rclpy. Every node keeps its own namespace
 ``/thruster/<id>``, its parameters and its services (``thruster-fdd reload`` and the lifecycle
 services work the same). Parameters come from ``--ros-args --params-file FILE`` (the standard
-``/thruster/<id>/<node>: ros__parameters:`` form, ``/health`` for the health node) and
-``-p [KIND:]name=value`` (which wins).
+``/thruster/<id>/<node>: ros__parameters:`` form) and ``-p [KIND:]name=value`` (which wins).
 
 The executor is ``nodes.common.make_executor()``'s: one EventsExecutor for all nodes (it does
 no work per entity on a wake), or with ``THRUSTER_FDD_EXECUTOR=single`` one SingleThreadedExecutor
@@ -53,11 +49,7 @@ KINDS = {
     "command_player": ("command_player", "CommandPlayer"),
     "nominal_model": ("nominal_model", "NominalModelNode"),
     "classifier": ("classifier", "ClassifierNode"),
-    "health": ("health", "HealthNode"),
 }
-VEHICLE_KINDS = frozenset({"health"})
-"""Kinds with one node for the whole vehicle (namespace ``/``, ``thruster_ids`` set to
-``--thrusters``) instead of one per thruster."""
 
 
 def _value(text: str) -> object:
@@ -129,28 +121,17 @@ def main(argv: list[str] | None = None) -> None:
     executors: list[Any] = [make_executor(kind)] if kind == "events" else []
     nodes = []
     try:
-        stages: dict[str, dict[str, Any]] = {}
         for tid in args.thrusters:
             if kind != "events":
                 executors.append(make_executor(kind))
-            made = stages[tid] = {}
+            made = {}
             for name, node_cls in classes.items():
-                if name in VEHICLE_KINDS:
-                    continue
                 overrides = [Parameter("thruster_id", value=tid), *params[name]]
                 made[name] = node_cls(namespace=f"/thruster/{tid}", parameter_overrides=overrides)
                 nodes.append(made[name])
                 executors[-1].add_node(made[name])
             if args.intra_process:
                 connect_stages(made)
-        for name in VEHICLE_KINDS & classes.keys():
-            overrides = [Parameter("thruster_ids", value=list(args.thrusters)), *params[name]]
-            node = classes[name](namespace="/", parameter_overrides=overrides)
-            nodes.append(node)
-            executors[0].add_node(node)
-            # Direct calls only when every thruster runs on this node's executor thread.
-            if args.intra_process and len(executors) == 1:
-                connect_vehicle(node, stages)
         if len(executors) == 1:
             spin(executors[0])
         else:
@@ -172,14 +153,6 @@ def connect_stages(nodes: dict[str, Any]) -> None:
         nodes["nominal_model"].take_telemetry_from(nodes["esc_driver"])
     if {"nominal_model", "classifier"} <= nodes.keys():
         nodes["classifier"].take_residuals_from(nodes["nominal_model"])
-
-
-def connect_vehicle(node: Any, stages: dict[str, dict[str, Any]]) -> None:
-    """Wire a vehicle-level node to every thruster's stages in this process by direct calls:
-    the health node takes residuals and diagnoses where both stages are here."""
-    for tid, made in stages.items():
-        if {"nominal_model", "classifier"} <= made.keys():
-            node.take_from(tid, made["nominal_model"], made["classifier"])
 
 
 def spin_in_threads(executors: Sequence[Any], names: Sequence[str]) -> None:

@@ -1,8 +1,7 @@
 """Health node: thrust available per thruster, for mission software and the thrust allocator.
 
 Subscribes to every listed thruster's ``fdd/diagnosis`` and ``fdd/residual`` (which carries the
-telemetry at the model's sample time), or takes them by direct calls when it runs in the vehicle
-container with the model stages (``nodes/container.py``) and publishes ``VehicleHealth`` on
+telemetry at the model's sample time) and publishes ``VehicleHealth`` on
 ``/thruster_fdd/health`` once a period and at once when a thruster's label, fault flag or
 staleness changes: per thruster the diagnosis, a fault flag and the effectiveness estimate with
 its uncertainty (``core.diagnosis.health``, ``core.diagnosis.effectiveness``), plus masks of
@@ -12,12 +11,11 @@ faulty and stale thrusters. A status on ``/diagnostics`` says whether diagnoses 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.subscription import Subscription
 from thruster_fdd_msgs.msg import Diagnosis, Residual, ThrusterHealth, VehicleHealth
 
 from thruster_fdd.core.diagnosis.effectiveness import ThrustReference
@@ -33,10 +31,6 @@ from thruster_fdd.nodes.common import (
     run,
     status_name,
 )
-
-if TYPE_CHECKING:  # the stand-alone health node loads no model code
-    from thruster_fdd.nodes.classifier import ClassifierNode
-    from thruster_fdd.nodes.nominal_model import NominalModelNode
 
 HEALTH_TOPIC = "/thruster_fdd/health"
 # Reliable and transient local with depth 1: mission software that starts late gets the latest
@@ -78,48 +72,26 @@ class HealthNode(Node):
         )
         self._diag_pub = diagnostics_publisher(self)
         self._received = dict.fromkeys(ids, 0)
-        self._subs: dict[str, tuple[Subscription, Subscription]] = {}
         for tid in ids:
-            self._subs[tid] = (
-                self.create_subscription(
-                    Diagnosis,
-                    f"/thruster/{tid}/fdd/diagnosis",
-                    lambda msg, tid=tid: self._on_diagnosis(tid, msg),
-                    RELIABLE_10,
-                    event_callbacks=NO_SUB_EVENTS,
-                ),
-                self.create_subscription(
-                    Residual,
-                    f"/thruster/{tid}/fdd/residual",
-                    lambda msg, tid=tid: self._on_residual(tid, msg),
-                    RESIDUAL_QOS,
-                    event_callbacks=NO_SUB_EVENTS,
-                ),
+            self.create_subscription(
+                Diagnosis,
+                f"/thruster/{tid}/fdd/diagnosis",
+                lambda msg, tid=tid: self._on_diagnosis(tid, msg),
+                RELIABLE_10,
+                event_callbacks=NO_SUB_EVENTS,
+            )
+            self.create_subscription(
+                Residual,
+                f"/thruster/{tid}/fdd/residual",
+                lambda msg, tid=tid: self._on_residual(tid, msg),
+                RESIDUAL_QOS,
+                event_callbacks=NO_SUB_EVENTS,
             )
         self.create_timer(float(p("period_s").value), self._publish)
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
         self.get_logger().info(
             f"health of {', '.join(ids)} on {HEALTH_TOPIC} (reference: {preset})"
         )
-
-    def take_from(self, tid: str, nominal: NominalModelNode, classifier: ClassifierNode) -> None:
-        """Get thruster ``tid``'s residuals and diagnoses from its nodes in this process.
-
-        Replaces the two DDS subscriptions of that thruster by intra-process delivery (the
-        container does this when it hosts the health node with the model stages, all on one
-        executor thread): no DDS receive and no executor wake per message.
-
-        Raises
-        ------
-        ValueError
-            If ``tid`` is not among this node's ``thruster_ids``.
-        """
-        if tid not in self._received:
-            raise ValueError(f"health: {tid} is not among thruster_ids {list(self._received)}")
-        for sub in self._subs.pop(tid, ()):
-            self.destroy_subscription(sub)
-        nominal.add_local_subscriber(lambda msg: self._on_residual(tid, msg))
-        classifier.add_local_subscriber(lambda msg: self._on_diagnosis(tid, msg))
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
