@@ -42,6 +42,18 @@ def ros_context() -> Iterator[object]:
 
 
 @pytest.fixture(scope="session")
+def quiet_t100() -> object:
+    """The t100 preset without sensor outliers: in a link or bridge test an odd value is then
+    the link's or the bridge's doing."""
+    from dataclasses import replace
+
+    from thruster_fdd.core.sim.config import load_config
+
+    config = load_config("t100")
+    return replace(config, measurement=replace(config.measurement, outlier_prob=0.0))
+
+
+@pytest.fixture(scope="session")
 def firmware_images(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     """The bridge firmware built from scratch for this run, ``{variant: FirmwareImage}``."""
     from thruster_fdd.core.bridge.firmware_build import build_firmware

@@ -31,7 +31,6 @@ from thruster_fdd.core.bridge.tfdd import (
     encode_command,
     encode_version_query,
 )
-from thruster_fdd.core.sim.config import load_config
 from thruster_fdd.core.sim.physics import ThrusterSimulator
 
 SERVO_PERIOD_S = 1 / 50
@@ -43,12 +42,6 @@ HOTT_FRAME_S = (44 * 1200 + 10 / hott.BAUD * 1e6) * 1e-6
 FAULT_FLAGS = StatusFlag.ADC_FAULT | StatusFlag.RPM_FAULT
 WAIT_S = 15.0
 """Longest wall-clock wait for something the co-simulation does, s (checks are in virtual time)."""
-
-
-def _quiet_t100() -> object:
-    """The t100 preset without sensor outliers: any odd value is then the bridge's doing."""
-    config = load_config("t100")
-    return replace(config, measurement=replace(config.measurement, outlier_prob=0.0))
 
 
 @dataclass
@@ -140,9 +133,11 @@ def _reader(rig: Rig, stop: threading.Event) -> None:
 
 
 @pytest.fixture(scope="module")
-def rig(firmware_images: dict, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+def rig(
+    firmware_images: dict, tmp_path_factory: pytest.TempPathFactory, quiet_t100: object
+) -> Iterator[Rig]:
     link = tmp_path_factory.mktemp("pty") / "fw.tty"
-    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=5)
+    simulator = ThrusterSimulator(quiet_t100, "nominal_15v", seed=5)
     bridge = cosim.FirmwareBridge(simulator, link, firmware_images["hott"], seed=1)
     bridge.open()
     stop = threading.Event()
@@ -422,8 +417,10 @@ def test_a_hung_main_loop_is_reset_by_the_watchdog_into_neutral(rig: Rig) -> Non
     rig.set_target(None)
 
 
-def test_kiss_telemetry_build_reads_the_esc_frames(firmware_images: dict, tmp_path: Path) -> None:
-    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=6)
+def test_kiss_telemetry_build_reads_the_esc_frames(
+    firmware_images: dict, tmp_path: Path, quiet_t100: object
+) -> None:
+    simulator = ThrusterSimulator(quiet_t100, "nominal_15v", seed=6)
     bridge = cosim.FirmwareBridge(simulator, tmp_path / "kiss.tty", firmware_images["kiss"])
     bridge.open()
     stop = threading.Event()
@@ -453,10 +450,10 @@ def test_kiss_telemetry_build_reads_the_esc_frames(firmware_images: dict, tmp_pa
 
 
 def test_rates_from_eeprom_400_hz_servo_and_100_hz_telemetry(
-    firmware_images: dict, tmp_path: Path
+    firmware_images: dict, tmp_path: Path, quiet_t100: object
 ) -> None:
     settings = cosim.CosimSettings(telemetry_hz=100, servo_hz=400)
-    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=9)
+    simulator = ThrusterSimulator(quiet_t100, "nominal_15v", seed=9)
     bridge = cosim.FirmwareBridge(
         simulator, tmp_path / "fast.tty", firmware_images["hott"], settings
     )
@@ -486,9 +483,11 @@ def test_rates_from_eeprom_400_hz_servo_and_100_hz_telemetry(
     assert all(abs(step - 10_000) <= 1100 for step in steps), "telemetry every 10 ms"
 
 
-def test_a_runner_that_fails_is_an_error(firmware_images: dict, tmp_path: Path) -> None:
+def test_a_runner_that_fails_is_an_error(
+    firmware_images: dict, tmp_path: Path, quiet_t100: object
+) -> None:
     image = replace(firmware_images["hott"], hex_path=tmp_path / "missing.hex")
-    bridge = cosim.FirmwareBridge(ThrusterSimulator(_quiet_t100()), tmp_path / "x.tty", image)
+    bridge = cosim.FirmwareBridge(ThrusterSimulator(quiet_t100), tmp_path / "x.tty", image)
     with pytest.raises(RuntimeError, match="runner exited with code 1"):
         bridge.run(threading.Event())
     assert not (tmp_path / "x.tty").exists(), "the link is removed"

@@ -15,7 +15,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -49,12 +49,6 @@ NS = "/thruster/it"
 DRIVER = f"{NS}/esc_driver"
 
 
-def _quiet_t100() -> object:
-    """The t100 preset without sensor outliers: a voltage jump can then only be link damage."""
-    config = load_config("t100")
-    return replace(config, measurement=replace(config.measurement, outlier_prob=0.0))
-
-
 @dataclass
 class Rig:
     """The emulator, the driver process and the probe's collected messages."""
@@ -82,9 +76,9 @@ class Rig:
 
 
 @pytest.fixture(scope="module")
-def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+def rig(tmp_path_factory: pytest.TempPathFactory, quiet_t100: object) -> Iterator[Rig]:
     link_path = tmp_path_factory.mktemp("pty") / "it.tty"
-    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=3)
+    simulator = ThrusterSimulator(quiet_t100, "nominal_15v", seed=3)
     emulator = BridgeEmulator(simulator, link_path, EmulatorSettings(rate_hz=RATE_HZ))
     emulator.open()
     stop_event = threading.Event()
@@ -295,7 +289,7 @@ def _open_devices(pid: int) -> set[str]:
     return out
 
 
-def test_lifecycle_transitions_walked_on_a_pty(tmp_path: Path) -> None:
+def test_lifecycle_transitions_walked_on_a_pty(tmp_path: Path, quiet_t100: object) -> None:
     """unconfigured: port closed, nothing published; a bad parameter fails configure;
     configure: port open, link reported, nothing published; activate: telemetry flows and
     commands are forwarded; deactivate: neutral at once (before the bridge's own watchdog),
@@ -308,7 +302,7 @@ def test_lifecycle_transitions_walked_on_a_pty(tmp_path: Path) -> None:
     from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
     node_name = "/thruster/lc/esc_driver"
-    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=5)
+    simulator = ThrusterSimulator(quiet_t100, "nominal_15v", seed=5)
     emulator = BridgeEmulator(simulator, tmp_path / "lc.tty", EmulatorSettings(rate_hz=RATE_HZ))
     device = emulator.open()
     stop_event = threading.Event()

@@ -12,7 +12,7 @@ import signal
 import subprocess
 import threading
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import pytest
 from probe import Probe, start_node, watch_driver
@@ -20,7 +20,6 @@ from probe import Probe, start_node, watch_driver
 from thruster_fdd.core.bridge import firmware_cosim as cosim
 from thruster_fdd.core.bridge import hott
 from thruster_fdd.core.bridge.tfdd import CommandFrame, FrameDecoder, StatusFlag
-from thruster_fdd.core.sim.config import load_config
 from thruster_fdd.core.sim.physics import ThrusterSimulator
 from thruster_fdd.lifetime import stop_children
 
@@ -73,15 +72,12 @@ class Rig:
         return times
 
 
-def _quiet_t100() -> object:
-    config = load_config("t100")
-    return replace(config, measurement=replace(config.measurement, outlier_prob=0.0))
-
-
 @pytest.fixture(scope="module")
-def rig(firmware_images: dict, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+def rig(
+    firmware_images: dict, tmp_path_factory: pytest.TempPathFactory, quiet_t100: object
+) -> Iterator[Rig]:
     link = tmp_path_factory.mktemp("pty") / "fw.tty"
-    simulator = ThrusterSimulator(_quiet_t100(), "nominal_15v", seed=7)
+    simulator = ThrusterSimulator(quiet_t100, "nominal_15v", seed=7)
     bridge = cosim.FirmwareBridge(simulator, link, firmware_images["hott"], seed=2)
     bridge.open()
     stop = threading.Event()
