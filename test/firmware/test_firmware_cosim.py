@@ -71,6 +71,13 @@ class Rig:
         with self.lock:
             self.target = pulse_us
 
+    def hold(self, pulse_us: int) -> None:
+        """Have the commander repeat ``pulse_us`` and wait until the servo output shows it."""
+        self.set_target(pulse_us)
+        assert self.wait(lambda: abs(self.bridge.pulses[-1].width_us - pulse_us) <= 0.5, WAIT_S), (
+            f"the servo never showed {pulse_us} us"
+        )
+
     def repeat_target(self) -> None:
         with self.lock:
             if self.target is not None:
@@ -101,11 +108,14 @@ class Rig:
         return [p for p in list(self.bridge.pulses) if p.t >= since]
 
     def chunk(self, data: bytes) -> cosim.HostChunk:
-        """The last chunk of exactly these bytes, once the bridge received it."""
+        """The last chunk that ends with these bytes, once the bridge received it: its
+        ``t_received`` is when their last byte arrived. (The co-simulation reads the pty as a
+        stream: bytes written just before, such as the commander's last repeat, can come out in
+        the same read.)"""
         found: list[cosim.HostChunk] = []
 
         def received() -> bool:
-            found[:] = [c for c in self.bridge.chunks() if c.data == data and c.t_received]
+            found[:] = [c for c in self.bridge.chunks() if c.data.endswith(data) and c.t_received]
             return bool(found)
 
         # Wall-clock bounds are generous: what is checked is in virtual time, and a loaded machine
@@ -270,7 +280,7 @@ def test_the_bridge_watchdog_gives_neutral_when_commands_stop(rig: Rig) -> None:
 
 
 def test_noise_and_damaged_frames_on_the_host_link_are_not_commands(rig: Rig) -> None:
-    rig.set_target(1600)
+    rig.hold(1600)
     rig.wait_virtual(0.2)
     start = rig.bridge.virtual_time
     rig.bridge.inject(cosim.HostNoise(256))
@@ -295,7 +305,9 @@ def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig
     the firmware applies are the commands the host's FrameDecoder finds in the same stream."""
     rng = np.random.default_rng(3)
     rig.set_target(None)
-    time.sleep(0.1)
+    # In virtual time: a command already on the pty must be applied before `before` is read;
+    # a co-simulation below real time needs longer than 0.1 s of wall-clock time for that.
+    rig.wait_virtual(0.1)
     start = rig.bridge.virtual_time
     before = rig.pulses()[-1].width_us
     stream = b""
@@ -351,7 +363,7 @@ def _flagged_window(rig: Rig, fault: str, n: int = 1) -> tuple[cosim.ServedFrame
 
 @pytest.mark.parametrize("fault", ["corrupt", "implausible"])
 def test_a_bad_esc_frame_is_flagged_and_never_forwarded(rig: Rig, fault: str) -> None:
-    rig.set_target(1600)
+    rig.hold(1600)
     bad, frames = _flagged_window(rig, fault)
     done = bad.t_sent + HOTT_FRAME_S
     next_good = min(
@@ -376,7 +388,7 @@ def test_a_bad_esc_frame_is_flagged_and_never_forwarded(rig: Rig, fault: str) ->
 
 
 def test_a_silent_esc_is_a_fault_that_gives_neutral(rig: Rig) -> None:
-    rig.set_target(1650)
+    rig.hold(1650)
     rig.wait_virtual(0.2)
     start = rig.bridge.virtual_time
     rig.bridge.inject(cosim.EscSilence(1.0))
@@ -397,7 +409,7 @@ def test_a_silent_esc_is_a_fault_that_gives_neutral(rig: Rig) -> None:
 
 
 def test_a_hung_main_loop_is_reset_by_the_watchdog_into_neutral(rig: Rig) -> None:
-    rig.set_target(1700)
+    rig.hold(1700)
     rig.wait_virtual(0.3)
     start = rig.bridge.virtual_time
     rig.bridge.inject(cosim.HangMainLoop())
