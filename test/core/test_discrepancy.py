@@ -19,7 +19,13 @@ from thruster_fdd.core.discrepancy.cases import (
     make_case,
     make_mismatch_case,
 )
-from thruster_fdd.core.discrepancy.fit import BASE_RANGE, Fit, calibrate
+from thruster_fdd.core.discrepancy.fit import (
+    BASE_RANGE,
+    DRIVE_LOSSES,
+    Fit,
+    calibrate,
+    free_parameters,
+)
 from thruster_fdd.core.discrepancy.measure import (
     Measured,
     noise_free,
@@ -221,6 +227,33 @@ def test_base_changes_offer_removing_the_start_drive_saturation() -> None:
     assert lean.params.esc_v_sat_v == float("inf")
     assert replace(lean.params, esc_v_sat_v=t200.params.esc_v_sat_v) == t200.params
     assert not any(c.no_drive_saturation for c in changes(lean, t200))
+
+
+def test_drive_losses_are_fitted_only_once_adopted() -> None:
+    """The drive-loss terms a start lacks are not calibrated until the search adopts them as a
+    base change (on traces of the start's own build they absorbed friction); the change frees
+    exactly those, and a start that has a term keeps it out of the change."""
+    t100, t200 = load_config("t100"), load_config("t200")
+    lean = free_parameters(t100)
+    assert not set(DRIVE_LOSSES) & set(lean)
+    [change] = [
+        c
+        for c in base_changes(Fit(t100, (), np.zeros(0), np.zeros(0), 0.0, None, 0), t100, {})
+        if c.drive_losses
+    ]
+    assert change.drive_losses == DRIVE_LOSSES
+    assert set(free_parameters(t100, ranges=change.ranges)) - set(lean) == set(DRIVE_LOSSES)
+    assert change.apply(t100) == t100  # only the bounds change
+    [t200_change] = [
+        c
+        for c in base_changes(Fit(t200, (), np.zeros(0), np.zeros(0), 0.0, None, 0), t200, {})
+        if c.drive_losses
+    ]
+    assert t200_change.drive_losses == ("structure.i_idle_per_krpm_a",)
+    adopted = base_changes(
+        Fit(t100, (), np.zeros(0), np.zeros(0), 0.0, None, 0), t100, change.ranges
+    )
+    assert not any(c.drive_losses for c in adopted)
 
 
 def test_start_config_drop() -> None:
