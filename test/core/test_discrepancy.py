@@ -27,6 +27,7 @@ from thruster_fdd.core.discrepancy.fit import (
     free_parameters,
 )
 from thruster_fdd.core.discrepancy.measure import (
+    Gap,
     Measured,
     noise_free,
     prepare_measured,
@@ -35,7 +36,9 @@ from thruster_fdd.core.discrepancy.measure import (
 )
 from thruster_fdd.core.discrepancy.report import REPORT_FILES, check_out_dir, write_report
 from thruster_fdd.core.discrepancy.search import (
+    Candidate,
     Result,
+    _choose,
     base_changes,
     run_workflow,
     start_config,
@@ -254,6 +257,22 @@ def test_drive_losses_are_fitted_only_once_adopted() -> None:
         Fit(t100, (), np.zeros(0), np.zeros(0), 0.0, None, 0), t100, change.ranges
     )
     assert not any(c.drive_losses for c in adopted)
+
+
+def test_choice_between_near_equal_candidates_goes_by_bic() -> None:
+    """The best held-out score wins; candidates within 1 % of it are decided by the BIC (the
+    simpler model, on an exact-base Coulomb case against the drive losses)."""
+    config = load_config("t100")
+
+    def final(name: str, score: float, bic: float) -> tuple[Candidate, Fit]:
+        fit = Fit(config, (), np.zeros(0), np.zeros(0), bic, Gap(0, 0, 1, 1, 0, score), 0)
+        return Candidate(name, fit, 0.0, 0.5, True, 0.5), fit
+
+    drive = final("base: drive losses", 1.060, -143.0)
+    coulomb = final("coulomb_friction", 1.065, -165.0)
+    assert _choose([drive, coulomb])[0].name == "coulomb_friction"
+    assert _choose([drive, final("coulomb_friction", 1.10, -165.0)])[0].name == drive[0].name
+    assert _choose([]) == (None, None)
 
 
 def test_start_config_drop() -> None:
