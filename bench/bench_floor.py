@@ -33,16 +33,15 @@ Usage (after ``. scripts/bootstrap.sh``)::
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import statistics
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+from procstat import cpu_seconds
+
 RESIDUAL_HZ = 10.0
 COMMAND_HZ = 20.0
 STATUSES_PER_THRUSTER = 3  # driver, model and classifier, once a second each
@@ -50,11 +49,6 @@ MODEL = "nominal-narx_deadband-0d46350029a7"
 CLASSES = (
     "nominal_15v", "nominal_13v", "nominal_11v8", "broken_blade_1", "broken_blade_2", "biofouling"
 )  # fmt: skip
-
-
-def _cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
 
 def _role(role: str, thrusters: int, rate: float, burst: bool) -> None:
@@ -214,10 +208,10 @@ def run_once(
         for role in ("recorder", "commands", "vehicle")
     }
     time.sleep(warmup)
-    first = {r: _cpu_s(p.pid) for r, p in procs.items()}
+    first = {r: cpu_seconds(p.pid) for r, p in procs.items()}
     t0 = time.monotonic()
     time.sleep(seconds)
-    last = {r: _cpu_s(p.pid) for r, p in procs.items()}
+    last = {r: cpu_seconds(p.pid) for r, p in procs.items()}
     wall = time.monotonic() - t0
     for p in procs.values():
         p.send_signal(signal.SIGINT)

@@ -25,15 +25,9 @@ from pathlib import Path
 
 import rclpy
 from mcap.reader import make_reader
+from procstat import cpu_seconds
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from thruster_fdd_msgs.msg import EscTelemetry
-
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def _cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
 
 def run_once(rate: float, topics: int, seconds: float) -> tuple[int, int, float]:
@@ -66,7 +60,7 @@ def run_once(rate: float, topics: int, seconds: float) -> tuple[int, int, float]
         rclpy.spin_once(node, timeout_sec=0.05)
     msg = EscTelemetry(thruster_id="b", voltage_v=15.0, rpm=1234.0, current_a=2.5)
     sent = 0
-    cpu0, wall0 = _cpu_s(recorder.pid), time.monotonic()
+    cpu0, wall0 = cpu_seconds(recorder.pid), time.monotonic()
     next_t = wall0
     period = topics / rate
     while time.monotonic() - wall0 < seconds:
@@ -79,7 +73,7 @@ def run_once(rate: float, topics: int, seconds: float) -> tuple[int, int, float]
         if delay > 0:
             time.sleep(delay)
     time.sleep(1.0)
-    cpu_share = (_cpu_s(recorder.pid) - cpu0) / (time.monotonic() - wall0)
+    cpu_share = (cpu_seconds(recorder.pid) - cpu0) / (time.monotonic() - wall0)
     recorder.send_signal(signal.SIGINT)
     recorder.wait(timeout=30)
     node.destroy_node()

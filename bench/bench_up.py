@@ -32,7 +32,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+from procstat import cpu_seconds
+
 # Process part by what its command line runs, first match wins: (text, part, group).
 PARTS = (
     ("thruster_fdd.nodes.recorder", "recorder", "vehicle"),
@@ -65,14 +66,13 @@ def _descendants(pid: int) -> list[int]:
 def _sample(pid: int) -> tuple[float, float, float, str, str] | None:
     """CPU seconds, RSS and PSS in MB, part and group of process ``pid``."""
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        cpu_s = cpu_seconds(pid)
         cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
         rollup = Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines()
     except OSError:
         return None
     kb = {line.split(":")[0]: int(line.split()[1]) for line in rollup[1:] if ":" in line}
     part, group = next(((p, g) for key, p, g in PARTS if key in cmdline), ("up", "up"))
-    cpu_s = (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
     return cpu_s, kb.get("Rss", 0) / 1024, kb.get("Pss", 0) / 1024, part, group
 
 
