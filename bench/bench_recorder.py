@@ -78,7 +78,7 @@ def run_once(rate: float, topics: int, seconds: float) -> tuple[int, int, float]
     recorder.wait(timeout=30)
     node.destroy_node()
     recorded = 0
-    for path in out.glob("bench_*.mcap"):
+    for path in out.rglob("*.mcap"):  # the bag folder <out>/bench/ holds the files
         with path.open("rb") as f:
             summary = make_reader(f).get_summary()
             recorded += sum(
