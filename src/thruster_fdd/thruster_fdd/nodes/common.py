@@ -63,6 +63,26 @@ def diagnostics_publisher(node: Node) -> Publisher:
     )
 
 
+def subscribe_thrusters(
+    node: Node,
+    thruster_ids: Iterable[str],
+    msg_type: type,
+    topic: str,
+    callback: Callable[[str, Any], None],
+    qos: QoSProfile,
+) -> None:
+    """Subscribe ``node`` to ``/thruster/<id>/<topic>`` of every thruster; ``callback(id, msg)``
+    gets each message with the id of the thruster that sent it."""
+    for tid in thruster_ids:
+        node.create_subscription(
+            msg_type,
+            f"/thruster/{tid}/{topic}",
+            lambda msg, tid=tid: callback(tid, msg),
+            qos,
+            event_callbacks=NO_SUB_EVENTS,
+        )
+
+
 STATUS_PREFIX = "thruster_fdd: "
 """Start of every status name on ``/diagnostics`` (diagnostic_updater's ``<node>: <task>`` form,
 the package standing for the node: a vehicle runs several of each node)."""

@@ -23,13 +23,13 @@ from thruster_fdd.core.diagnosis.health import HealthTracker, masks
 from thruster_fdd.core.sim.config import load_config
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
-    NO_SUB_EVENTS,
     RELIABLE_10,
     declare_parameters,
     diagnostics_publisher,
     publish_status,
     run,
     status_name,
+    subscribe_thrusters,
 )
 
 HEALTH_TOPIC = "/thruster_fdd/health"
@@ -72,21 +72,8 @@ class HealthNode(Node):
         )
         self._diag_pub = diagnostics_publisher(self)
         self._received = dict.fromkeys(ids, 0)
-        for tid in ids:
-            self.create_subscription(
-                Diagnosis,
-                f"/thruster/{tid}/fdd/diagnosis",
-                lambda msg, tid=tid: self._on_diagnosis(tid, msg),
-                RELIABLE_10,
-                event_callbacks=NO_SUB_EVENTS,
-            )
-            self.create_subscription(
-                Residual,
-                f"/thruster/{tid}/fdd/residual",
-                lambda msg, tid=tid: self._on_residual(tid, msg),
-                RESIDUAL_QOS,
-                event_callbacks=NO_SUB_EVENTS,
-            )
+        subscribe_thrusters(self, ids, Diagnosis, "fdd/diagnosis", self._on_diagnosis, RELIABLE_10)
+        subscribe_thrusters(self, ids, Residual, "fdd/residual", self._on_residual, RESIDUAL_QOS)
         self.create_timer(float(p("period_s").value), self._publish)
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
         self.get_logger().info(

@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
-from thruster_fdd.nodes.common import NO_SUB_EVENTS, status_name
+from thruster_fdd.nodes.common import NO_SUB_EVENTS, status_name, subscribe_thrusters
 
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 WINDOW_S = 2.0
@@ -41,29 +41,11 @@ class Monitor(Node):
         super().__init__("monitor")
         self.rows = {tid: _Row() for tid in thruster_ids}
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        for tid in thruster_ids:
-            ns = f"/thruster/{tid}"
-            self.create_subscription(
-                EscTelemetry,
-                f"{ns}/esc/telemetry",
-                lambda msg, tid=tid: self._on_telemetry(tid, msg),
-                qos_profile_sensor_data,
-                event_callbacks=NO_SUB_EVENTS,
-            )
-            self.create_subscription(
-                Residual,
-                f"{ns}/fdd/residual",
-                lambda msg, tid=tid: self._on_residual(tid, msg),
-                qos_profile_sensor_data,
-                event_callbacks=NO_SUB_EVENTS,
-            )
-            self.create_subscription(
-                Diagnosis,
-                f"{ns}/fdd/diagnosis",
-                lambda msg, tid=tid: setattr(self.rows[tid], "diagnosis", msg),
-                reliable,
-                event_callbacks=NO_SUB_EVENTS,
-            )
+        sensor = qos_profile_sensor_data
+        ids = thruster_ids
+        subscribe_thrusters(self, ids, EscTelemetry, "esc/telemetry", self._on_telemetry, sensor)
+        subscribe_thrusters(self, ids, Residual, "fdd/residual", self._on_residual, sensor)
+        subscribe_thrusters(self, ids, Diagnosis, "fdd/diagnosis", self._on_diagnosis, reliable)
         self.create_subscription(
             DiagnosticArray,
             "/diagnostics",
@@ -79,6 +61,9 @@ class Monitor(Node):
         row = self.rows[tid]
         row.last = msg
         row.stamps.append(self._now_s())
+
+    def _on_diagnosis(self, tid: str, msg: Diagnosis) -> None:
+        self.rows[tid].diagnosis = msg
 
     def _on_residual(self, tid: str, msg: Residual) -> None:
         if msg.flags == Residual.OK:
