@@ -437,6 +437,8 @@ class BaseChange:
         Whether it removes the start's ESC drive saturation (``esc_v_sat_v`` to inf).
     drive_losses : tuple of str
         The ``fit.DRIVE_LOSSES`` terms it frees (by their keys in ``ranges``).
+    min_gain : float
+        Fraction of the held-out excess it must remove to be accepted (``try_base_change``).
     """
 
     label: str
@@ -445,6 +447,7 @@ class BaseChange:
     second_stage: bool = False
     no_drive_saturation: bool = False
     drive_losses: tuple[str, ...] = ()
+    min_gain: float = BASE_GAIN
 
     def apply(self, config: SimConfig) -> SimConfig:
         """``config`` with the change (its bounds aside)."""
@@ -496,7 +499,12 @@ def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -
     if lacking:
         names = ", ".join(k.split(".")[1] for k in lacking)
         free = {**ranges, **dict.fromkeys(lacking, math.inf)}
-        out.append(BaseChange(f"base: drive losses ({names})", free, drive_losses=lacking))
+        # Terms of the model's own form: accepted like an effect (``try_base_change``).
+        out.append(
+            BaseChange(
+                f"base: drive losses ({names})", free, drive_losses=lacking, min_gain=MIN_GAIN
+            )
+        )
     return out
 
 
@@ -505,13 +513,13 @@ def try_base_change(
 ) -> Candidate:
     """Re-fit ``base`` with ``change``, from two origins like ``try_candidate``: the current
     model and ``named`` (the uncalibrated start plus the effects named so far), each with the
-    change; the lower BIC is kept. Accepted on a lower BIC and a held-out gain of at least
-    ``BASE_GAIN`` (stricter than an effect's ``MIN_GAIN``: a parameter that leaves its range
-    to explain only part of the gap is more likely making up for something else; on the T200
-    bench trace ``r_ohm`` would go to a quarter of the preset's, remove 27 % of the excess and
-    leave the deadband 21 % small); the drive losses, terms of the model's own form, by an
-    effect's rules (``MIN_GAIN``: held to ``BASE_GAIN``, a drive loss removing 49 % lost to a
-    viscous friction standing in for it with 42 %)."""
+    change; the lower BIC is kept. Accepted on a lower BIC and a held-out gain of at least the
+    change's ``min_gain``: ``BASE_GAIN`` (stricter than an effect's ``MIN_GAIN``: a parameter
+    that leaves its range to explain only part of the gap is more likely making up for
+    something else; on the T200 bench trace ``r_ohm`` would go to a quarter of the preset's,
+    remove 27 % of the excess and leave the deadband 21 % small); the drive losses, terms of
+    the model's own form, by an effect's rules (``MIN_GAIN``: held to ``BASE_GAIN``, a drive
+    loss removing 49 % lost to a viscous friction standing in for it with 42 %)."""
     # Full calibrations (12 iterations, not CANDIDATE_ITER): a base change re-shapes the whole
     # model, and from a model distorted by a parameter on its bound 6 iterations fall short
     # (an out-of-range k_q and a hidden dead time: 6 remove 43 % of the excess, 12 most of it).
@@ -523,7 +531,7 @@ def try_base_change(
     fit = replace(fit, n_sims=sum(f.n_sims for f in fits))
     delta_bic = fit.bic - base.bic
     gain = (base.gap.score - fit.gap.score) / max(base.gap.score - 1.0, 1e-12)
-    accepted = delta_bic < 0.0 and gain >= (MIN_GAIN if change.drive_losses else BASE_GAIN)
+    accepted = delta_bic < 0.0 and gain >= change.min_gain
     return Candidate(change.label, fit, delta_bic, gain, accepted, gain)
 
 
