@@ -93,6 +93,9 @@ class Case:
     switches : dict of str to str
         Structural switches of the measured thruster that differ from the start preset, with
         their values (mismatch family; empty for the exact base).
+    unit : SimConfig or None
+        The simulated unit itself (after spread): the truth a named parameter is checked
+        against, with its base (a friction torque is identified only relative to ``k_e``).
     """
 
     trace: Trace
@@ -102,6 +105,7 @@ class Case:
     clean: Trace
     superfluous: tuple[str, ...] = ()
     switches: dict[str, str] = field(default_factory=dict)
+    unit: SimConfig | None = None
 
 
 ABSENT: dict[str, tuple[str, ...]] = {
@@ -223,7 +227,7 @@ def make_case(
         if effect is None:
             raise ValueError(f"hidden effect {name!r} missing from the simulated unit")
         values[name] = effect.params()
-    return Case(trace=trace, start=start, hidden=values, signal=signal, clean=clean)
+    return Case(trace=trace, start=start, hidden=values, signal=signal, clean=clean, unit=unit)
 
 
 MISMATCH_SWITCHES = (
@@ -431,4 +435,5 @@ def make_mismatch_case(
         clean=clean,
         superfluous=tuple(superfluous),
         switches=switches,
+        unit=unit,
     )

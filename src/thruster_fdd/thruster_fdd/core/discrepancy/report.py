@@ -191,6 +191,27 @@ def at_bound(result: Result) -> list[str]:
     return out
 
 
+FRICTION_UNITS = {"coulomb_friction": ("torque_nm", "A"), "viscous_friction": ("coeff", "A s/rad")}
+"""Named friction torques restated as motor current: parameter, unit of parameter / k_e."""
+
+
+def _friction_currents(result: Result) -> list[str]:
+    """Named friction torques as the motor current they draw (parameter / k_e): with the drive
+    losses free, k_e and a friction torque trade along a valley of equal fit (docs/discrepancy.md),
+    so the current is what the data pin down."""
+    k_e = result.final.config.params.k_e
+    out = []
+    for name, (param, unit) in FRICTION_UNITS.items():
+        if name in result.added:
+            value = getattr(result.final.config.effect(name), param)
+            out.append(
+                f"- `{name}` as motor current: {param} / k_e = {_fmt(value / k_e)} {unit} "
+                f"(k_e {_fmt(k_e)} V s/rad); the better-determined figure when k_e is not "
+                "fixed by the data."
+            )
+    return ["", *out] if out else []
+
+
 def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[str]) -> str:
     """The report.md text."""
     rep = result.report()
@@ -238,6 +259,7 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         for m in rep["missing_effects"]:
             for p, v in m["params"].items():
                 lines.append(f"| `{m['name']}` | {p} | {_fmt(v)} | {_fmt(m['uncertainty'][p])} |")
+        lines += _friction_currents(result)
     else:
         lines.append("none")
     lines += ["", "## Effects of the start the thruster lacks", ""]
