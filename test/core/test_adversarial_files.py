@@ -129,6 +129,22 @@ def test_file_cut_anywhere_gives_a_clean_prefix_and_says_so(
     assert previous > 0.9 * N
 
 
+def test_chunk_with_its_type_damaged_is_counted_lost(tmp_path: Path, recording: bytes) -> None:
+    """The first chunk's type byte hit (0x06 ^ 0x80: a private type, skipped): its messages are
+    lost and said, from the message indexes behind it (found by hypothesis, flip (70, 128))."""
+    data = bytearray(recording)
+    first = _chunk_offsets(recording)[0]
+    assert data[first] == 0x06
+    data[first] ^= 0x80
+    (tmp_path / "f.mcap").write_bytes(bytes(data))
+    traces, said = _read(tmp_path / "f.mcap")
+    assert traces is not None
+    assert sum(len(t) for t in traces) < N
+    assert len(said) == 1
+    assert "a chunk with its type damaged" in said[0]
+    assert "message(s) lost" in said[0]
+
+
 def test_five_bytes_short_reads_everything_with_a_warning(tmp_path: Path, recording: bytes) -> None:
     path = tmp_path / "short.mcap"
     path.write_bytes(recording[:-5])

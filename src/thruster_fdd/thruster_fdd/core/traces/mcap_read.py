@@ -147,6 +147,7 @@ class _Walk:
     lost_in_chunks: int = 0
     lost_span_ns: int = 0
     last_chunk_bad: bool = False
+    skipped_at: int | None = None
     expected: int | None = None
 
     def add_schema(self, schema: Schema) -> None:
@@ -262,7 +263,8 @@ def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> None:
     span_ns = max(0, chunk.message_end_time - chunk.message_start_time)
     try:
         data = _decompress(chunk)
-    except (zstandard.ZstdError, RuntimeError, ValueError) as exc:
+    except (zstandard.ZstdError, RuntimeError, ValueError, MemoryError) as exc:
+        # MemoryError: zstandard's answer to some damaged frame headers (found by fuzzing).
         walk.problems.append(f"chunk at byte {offset} does not decompress ({exc})")
         walk.bad_chunks += 1
         walk.lost_span_ns += span_ns
@@ -365,9 +367,23 @@ def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapCo
             walk.problems.append(f"record at byte {offset} is damaged ({exc})")
             walk.last_chunk_bad = True
             continue
+        if opcode != Opcode.MESSAGE_INDEX:
+            walk.skipped_at = None
         if opcode == Opcode.CHUNK:
             _read_chunk(walk, record, offset)
+        elif record is None:
+            # Skipped (a private record type): if message indexes follow, it held a chunk's
+            # messages (a chunk whose type byte was hit: 0x06 ^ 0x80 is private).
+            walk.last_chunk_bad = True
+            walk.skipped_at = offset
         elif opcode == Opcode.MESSAGE_INDEX:
+            if walk.skipped_at is not None:
+                walk.problems.append(
+                    f"record at byte {walk.skipped_at} has a private type but message indexes "
+                    "follow it (a chunk with its type damaged)"
+                )
+                walk.bad_chunks += 1
+                walk.skipped_at = None
             if walk.last_chunk_bad:
                 walk.lost_in_chunks += len(record.records)
         elif opcode == Opcode.METADATA:
@@ -396,6 +412,11 @@ def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapCo
             f"{walk.bad_chunks} damaged chunk(s) skipped: {walk.lost_in_chunks} message(s) "
             f"lost{span}"
         )
+    unaccounted = (walk.expected or 0) - len(walk.messages) - walk.lost_in_chunks
+    if unaccounted > 0:
+        # The last check: the statistics record (under the summary CRC when there is one)
+        # counts messages that no damaged record explains.
+        walk.problems.append(f"{unaccounted} message(s) the statistics count are missing")
     if not walk.messages and require_messages:
         summary = "; ".join(walk.problems) or "it holds no messages"
         raise BadInputError(f"{path}: no message could be read ({summary})")
