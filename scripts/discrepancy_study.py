@@ -51,6 +51,7 @@ from thruster_fdd.core.discrepancy.cases import (
     make_mismatch_case,
 )
 from thruster_fdd.core.discrepancy.measure import Measured, simulate_model
+from thruster_fdd.core.discrepancy.report import FRICTION_UNITS, friction_currents
 from thruster_fdd.core.discrepancy.search import run_workflow
 from thruster_fdd.core.sim.config import SimConfig
 from thruster_fdd.core.traces.data import Trace
@@ -69,10 +70,6 @@ starting from that preset."""
 
 
 EXACT_DURATION_S = 60.0
-
-
-FRICTIONS = ("coulomb_friction", "viscous_friction")
-"""Effects whose parameter is a torque, also checked as a current (``friction_current_error``)."""
 
 
 def _model_error(config: SimConfig, clean: Trace, data: Measured) -> float:
@@ -119,13 +116,8 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
             errors[name] = max(abs(found["params"][p] / v - 1.0) for p, v in params.items())
     # With the drive losses free, k_e trades with a friction torque along a valley of equal fit
     # (docs/discrepancy.md): only the friction current, torque / k_e, is pinned by the data.
-    friction_current = {}
-    for name in FRICTIONS:
-        if name in errors:
-            ((p, v),) = case.hidden[name].items()
-            found = next(m for m in rep["missing_effects"] if m["name"] == name)
-            ratio = result.final.config.params.k_e / case.unit.params.k_e
-            friction_current[name] = abs(found["params"][p] / v / ratio - 1.0)
+    fitted, unit = friction_currents(result.final.config), friction_currents(case.unit)
+    friction_current = {n: abs(fitted[n] / unit[n] - 1.0) for n in fitted if n in errors}
     return {
         "family": family,
         "hidden": list(hidden),
@@ -186,7 +178,7 @@ def _summary(rows: list[dict]) -> list[str]:
             f"{sum(e <= 0.2 for e in errs)}/{len(errs)}; model error halved {halved}/{len(both)}."
         )
         cur = [e for r in both for e in r.get("friction_current_error", {}).values()]
-        torque = [e for r in both for n, e in r["param_error"].items() if n in FRICTIONS]
+        torque = [e for r in both for n, e in r["param_error"].items() if n in FRICTION_UNITS]
         if cur:
             out.append(
                 f"Friction torques within 20 %: {sum(e <= 0.2 for e in torque)}/{len(torque)}; "

@@ -34,7 +34,7 @@ from thruster_fdd.core.discrepancy.search import (
     Result,
 )
 from thruster_fdd.core.errors import BadInputError
-from thruster_fdd.core.sim.config import dump_config
+from thruster_fdd.core.sim.config import SimConfig, dump_config
 
 REPORT_FILES = (
     "report.json",
@@ -193,23 +193,30 @@ def at_bound(result: Result) -> list[str]:
 
 
 FRICTION_UNITS = {"coulomb_friction": ("torque_nm", "A"), "viscous_friction": ("coeff", "A s/rad")}
-"""Named friction torques restated as motor current: parameter, unit of parameter / k_e."""
+"""Friction effects restated as motor current: parameter, unit of parameter / k_e."""
+
+
+def friction_currents(config: SimConfig) -> dict[str, float]:
+    """The friction effects of ``config`` as the motor current they draw (parameter / k_e, in
+    ``FRICTION_UNITS``): with the drive losses free, k_e and a friction torque trade along a
+    valley of equal fit (docs/discrepancy.md), so the current is what the data pin down."""
+    return {
+        name: getattr(effect, param) / config.params.k_e
+        for name, (param, _unit) in FRICTION_UNITS.items()
+        if (effect := config.effect(name)) is not None
+    }
 
 
 def _friction_currents(result: Result) -> list[str]:
-    """Named friction torques as the motor current they draw (parameter / k_e): with the drive
-    losses free, k_e and a friction torque trade along a valley of equal fit (docs/discrepancy.md),
-    so the current is what the data pin down."""
+    """report.md lines: each named friction as the current it draws (``friction_currents``)."""
     k_e = result.final.config.params.k_e
-    out = []
-    for name, (param, unit) in FRICTION_UNITS.items():
-        if name in result.added:
-            value = getattr(result.final.config.effect(name), param)
-            out.append(
-                f"- `{name}` as motor current: {param} / k_e = {_fmt(value / k_e)} {unit} "
-                f"(k_e {_fmt(k_e)} V s/rad); the better-determined figure when k_e is not "
-                "fixed by the data."
-            )
+    out = [
+        f"- `{name}` as motor current: {FRICTION_UNITS[name][0]} / k_e = {_fmt(value)} "
+        f"{FRICTION_UNITS[name][1]} (k_e {_fmt(k_e)} V s/rad); the better-determined figure "
+        "when k_e is not fixed by the data."
+        for name, value in friction_currents(result.final.config).items()
+        if name in result.added
+    ]
     return ["", *out] if out else []
 
 
