@@ -147,7 +147,7 @@ class _Walk:
     lost_in_chunks: int = 0
     lost_span_ns: int = 0
     last_chunk_bad: bool = False
-    skipped_at: int | None = None
+    not_chunk: tuple[int, int] | None = None  # (offset, type) of the last record if no chunk
     expected: int | None = None
 
     def add_schema(self, schema: Schema) -> None:
@@ -366,24 +366,24 @@ def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapCo
             # Perhaps a chunk: the message indexes behind it count what it held.
             walk.problems.append(f"record at byte {offset} is damaged ({exc})")
             walk.last_chunk_bad = True
+            walk.not_chunk = None  # said already
             continue
         if opcode != Opcode.MESSAGE_INDEX:
-            walk.skipped_at = None
+            walk.not_chunk = None if opcode == Opcode.CHUNK else (offset, opcode)
         if opcode == Opcode.CHUNK:
             _read_chunk(walk, record, offset)
-        elif record is None:
-            # Skipped (a private record type): if message indexes follow, it held a chunk's
-            # messages (a chunk whose type byte was hit: 0x06 ^ 0x80 is private).
-            walk.last_chunk_bad = True
-            walk.skipped_at = offset
         elif opcode == Opcode.MESSAGE_INDEX:
-            if walk.skipped_at is not None:
+            if walk.not_chunk is not None:
+                # Message indexes follow only chunks: this record held one, its type byte hit
+                # (0x06 ^ 0x80 reads as a private record and is skipped whole).
+                at, kind = walk.not_chunk
                 walk.problems.append(
-                    f"record at byte {walk.skipped_at} has a private type but message indexes "
-                    "follow it (a chunk with its type damaged)"
+                    f"record at byte {at} (type {kind:#04x}) has message indexes behind it "
+                    "(a chunk with its type damaged)"
                 )
                 walk.bad_chunks += 1
-                walk.skipped_at = None
+                walk.last_chunk_bad = True
+                walk.not_chunk = None
             if walk.last_chunk_bad:
                 walk.lost_in_chunks += len(record.records)
         elif opcode == Opcode.METADATA:
