@@ -32,6 +32,7 @@ import os
 import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -50,10 +51,12 @@ from thruster_fdd.core.discrepancy.cases import (
     make_case,
     make_mismatch_case,
 )
+from thruster_fdd.core.discrepancy.fit import without_effects
 from thruster_fdd.core.discrepancy.measure import Measured, simulate_model
 from thruster_fdd.core.discrepancy.report import FRICTION_UNITS, friction_currents
 from thruster_fdd.core.discrepancy.search import run_workflow
-from thruster_fdd.core.sim.config import SimConfig
+from thruster_fdd.core.sim.config import Measurement, SimConfig
+from thruster_fdd.core.sim.physics import simulate
 from thruster_fdd.core.traces.data import Trace
 
 PAIRS = (
@@ -84,6 +87,26 @@ def _model_error(config: SimConfig, clean: Trace, data: Measured) -> float:
         np.mean(
             [
                 np.mean((sim[c] - getattr(clean, c))[data.held] ** 2) / data.sigma[c] ** 2
+                for c in ("rpm", "current")
+            ]
+        )
+    )
+
+
+def _visibility(case: Case, data: Measured, seed: int) -> float:
+    """How far the hidden effects move the unit's noise-free response: the mean squared
+    difference of rpm and current with against without them, over the whole trace, in
+    noise-variance units (nan without hidden effects). Under about 1 no method can name them
+    from this trace: the benchmark, not the workflow, is at fault."""
+    if not case.hidden:
+        return float("nan")
+    bare = replace(without_effects(case.unit, tuple(case.hidden)), spread=0.0)
+    sim = simulate(replace(bare, measurement=Measurement()), case.clean.t, case.clean.command,
+                   seed=seed)  # fmt: skip
+    return float(
+        np.mean(
+            [
+                np.mean((getattr(sim, c) - getattr(case.clean, c)) ** 2) / data.sigma[c] ** 2
                 for c in ("rpm", "current")
             ]
         )
@@ -137,6 +160,7 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "gap_before": rep["gap_before"],
         "gap_after": rep["gap_after"],
         "wall_s": time.perf_counter() - t0,
+        "visibility": _visibility(case, data, seed),
     }
 
 
@@ -177,6 +201,15 @@ def _summary(rows: list[dict]) -> list[str]:
             f"{100 * sum(map(exact, both)) / len(both):.0f} %); parameters within 20 %: "
             f"{sum(e <= 0.2 for e in errs)}/{len(errs)}; model error halved {halved}/{len(both)}."
         )
+        seen = [r["visibility"] for r in both if "visibility" in r]
+        if seen:
+            faint = [r for r in both if r.get("visibility", np.inf) < 1.0]
+            out.append(
+                f"Hidden effects' visibility (noise-free response with against without them, "
+                f"mean square in noise variances): median {statistics.median(seen):.1f}, "
+                f"least {min(seen):.2f}; under 1: {len(faint)} run(s), named exactly "
+                f"{sum(map(exact, faint))}."
+            )
         cur = [e for r in both for e in r.get("friction_current_error", {}).values()]
         torque = [e for r in both for n, e in r["param_error"].items() if n in FRICTION_UNITS]
         if cur:

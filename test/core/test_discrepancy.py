@@ -18,6 +18,8 @@ from thruster_fdd.core.discrepancy.cases import (
     PLAUSIBLE,
     make_case,
     make_mismatch_case,
+    peak_duty_rate,
+    plausible_ranges,
 )
 from thruster_fdd.core.discrepancy.fit import (
     BASE_RANGE,
@@ -262,6 +264,28 @@ def test_mismatch_case_differs_from_its_start() -> None:
         assert float(np.max(np.abs(start_run.rpm - case.clean.rpm))) > 100.0
     with pytest.raises(ValueError, match="cannot be hidden"):
         make_mismatch_case(("esc_lag",), 0)
+
+
+def test_slew_range_follows_the_peak_duty_rate_of_the_esc() -> None:
+    """``peak_duty_rate`` is the steepest rise of the duty after a unit step through both ESC
+    stages (integrated here in small steps), and ``plausible_ranges`` lowers the slew limits it
+    draws by as much as a second stage slows the duty: a limit above every rate the duty reaches
+    would hide nothing."""
+    t100 = load_config("t100")
+    two = replace(t100, structure=replace(t100.structure, esc_tau2_s=0.13))
+    h, d1, d, steepest = 1e-4, 0.0, 0.0, 0.0
+    for _ in range(30000):
+        d1 += (1.0 - d1) * h / 0.61
+        step = (d1 - d) * h / 0.13
+        d += step
+        steepest = max(steepest, step / h)
+    assert peak_duty_rate(two) == pytest.approx(steepest, rel=1e-3)
+    assert peak_duty_rate(t100) == pytest.approx(1.0 / 0.61)
+    ratio = peak_duty_rate(two) * 0.61
+    assert 0.6 < ratio < 0.7
+    _attr, lo, hi = plausible_ranges(two)["slew_rate_limit"]
+    assert (lo, hi) == pytest.approx((0.5 * ratio, 2.0 * ratio))
+    assert plausible_ranges(t100)["slew_rate_limit"][1:] == pytest.approx((0.5, 2.0))
 
 
 def test_base_changes_offer_removing_the_start_drive_saturation() -> None:

@@ -109,16 +109,27 @@ def test_launch_file_starts_every_thruster_of_its_parameters_file(tmp_path: Path
                 probe.node.create_subscription(
                     Residual, f"/thruster/{tid}/fdd/residual", residuals[tid].append, RESIDUAL_QOS
                 )
+
+            def recording() -> bool:
+                return any(
+                    info.node_name == "recorder"
+                    for info in probe.node.get_subscriptions_info_by_topic(
+                        "/thruster/la/esc/telemetry"
+                    )
+                )
+
+            # The recorder looks for new topics every 0.5 s and discovery of its subscription
+            # reaches the probe later still under load: waited for, not sampled once.
             probe.spin_until(
-                lambda: all(len(residuals[t]) >= 10 and len(telemetry[t]) >= 50 for t in ids),
+                lambda: (
+                    all(len(residuals[t]) >= 10 and len(telemetry[t]) >= 50 for t in ids)
+                    and recording()
+                ),
                 60.0,
                 0.05,
             )
             topics = {name for name, _ in probe.node.get_topic_names_and_types()}
-            recorded = any(
-                info.node_name == "recorder"
-                for info in probe.node.get_subscriptions_info_by_topic("/thruster/la/esc/telemetry")
-            )
+            recorded = recording()
     finally:
         launch.send_signal(signal.SIGINT)
         try:
