@@ -44,6 +44,8 @@ from thruster_fdd.core.discrepancy.report import (
     write_report,
 )
 from thruster_fdd.core.discrepancy.search import (
+    MIN_GAIN,
+    SECOND_STAGE,
     Candidate,
     Result,
     _choose,
@@ -301,10 +303,35 @@ def test_base_changes_offer_removing_the_start_drive_saturation() -> None:
     [change] = [c for c in changes(t200, t200) if c.no_drive_saturation]
     assert change.label == "base: no drive saturation"
     assert not any(c.no_drive_saturation for c in changes(t100, t100))
-    lean = change.apply(t200)
+    [lean] = change.starts(t200)
     assert lean.params.esc_v_sat_v == float("inf")
     assert replace(lean.params, esc_v_sat_v=t200.params.esc_v_sat_v) == t200.params
     assert not any(c.no_drive_saturation for c in changes(lean, t200))
+
+
+def test_second_esc_stage_starts_from_a_grid_and_is_accepted_like_an_effect() -> None:
+    """The second ESC stage, a term of the model's own ESC form, is held to an effect's
+    ``MIN_GAIN`` (held to ``BASE_GAIN``, a short dead time standing in for it won), and starts
+    from ``SECOND_STAGE`` times the lag, the lag shortened by as much; ``apply`` takes the start
+    that fits the data best."""
+    t100 = load_config("t100")
+    [change] = [
+        c
+        for c in base_changes(Fit(t100, (), np.zeros(0), np.zeros(0), 0.0, None, 0), t100, {})
+        if c.second_stage
+    ]
+    assert change.min_gain == MIN_GAIN
+    starts = change.starts(t100)
+    taus = [c.structure.esc_tau2_s for c in starts]
+    assert taus == pytest.approx([f * 0.61 for f in SECOND_STAGE])
+    # The cascade keeps the lag's mean delay.
+    assert [c.effect("esc_lag").tau_s + c.structure.esc_tau2_s for c in starts] == pytest.approx(
+        [0.61] * len(SECOND_STAGE)
+    )
+    unit = replace(t100, spread=0.0, structure=replace(t100.structure, esc_tau2_s=0.08))
+    t, command = make_signal("steps", 60.0, 10.0, seed=2)
+    data = prepare_measured(simulate(unit, t, command, seed=2), t100)
+    assert change.apply(t100, data).structure.esc_tau2_s == pytest.approx(0.12 * 0.61)
 
 
 def test_drive_losses_are_fitted_only_once_adopted() -> None:
@@ -321,7 +348,7 @@ def test_drive_losses_are_fitted_only_once_adopted() -> None:
     ]
     assert change.drive_losses == DRIVE_LOSSES
     assert set(free_parameters(t100, ranges=change.ranges)) - set(lean) == set(DRIVE_LOSSES)
-    assert change.apply(t100) == t100  # only the bounds change
+    assert change.starts(t100) == [t100]  # only the bounds change
     [t200_change] = [
         c
         for c in base_changes(Fit(t200, (), np.zeros(0), np.zeros(0), 0.0, None, 0), t200, {})
