@@ -290,6 +290,18 @@ def test_slew_range_follows_the_peak_duty_rate_of_the_esc() -> None:
     assert plausible_ranges(t100)["slew_rate_limit"][1:] == pytest.approx((0.5, 2.0))
 
 
+def test_study_visibility_tells_a_hidden_effect_that_does_not_act(load_script) -> None:
+    """The study's visibility of a hidden effect: how far removing it moves the unit's
+    noise-free response. An exact-family current limit that the trace's current never
+    reaches (seed 569, 9 A on its ``reversals`` levels) has none; a hidden dead time has
+    thousands of noise variances."""
+    study = load_script("discrepancy_study")
+    for hidden, least, most in (("current_limit", 0.0, 0.01), ("dead_time", 100.0, np.inf)):
+        case = make_case((hidden,), 569, duration_s=60.0)
+        data = prepare_measured(case.trace, case.start)
+        assert least <= study._visibility(case, data, 569)[hidden] <= most
+
+
 def test_base_changes_offer_removing_the_start_drive_saturation() -> None:
     """A start with ESC drive saturation (t200) is offered a base change without it (the
     calibration keeps a structural term the start has); once removed, or for a start without
