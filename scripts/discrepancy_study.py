@@ -31,6 +31,7 @@ import json
 import os
 import statistics
 import time
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from multiprocessing import get_context
@@ -75,6 +76,14 @@ starting from that preset."""
 EXACT_DURATION_S = 60.0
 
 
+def _noise_units(
+    diff: Callable[[str], np.ndarray], sigma: dict[str, float], channels: Sequence[str]
+) -> float:
+    """Mean over ``channels`` of the mean squared ``diff(channel)``, each in units of that
+    channel's noise variance (``sigma``, the measurement's noise estimate)."""
+    return float(np.mean([np.mean(diff(c) ** 2) / sigma[c] ** 2 for c in channels]))
+
+
 def _model_error(config: SimConfig, clean: Trace, data: Measured) -> float:
     """Held-out mean squared error of ``config``'s free run against the unit's noise-free
     response, rpm and current (the signals of report.json's gap), in noise-variance units.
@@ -83,13 +92,8 @@ def _model_error(config: SimConfig, clean: Trace, data: Measured) -> float:
     reconstruction, not from the model.
     """
     sim = simulate_model(config, data)
-    return float(
-        np.mean(
-            [
-                np.mean((sim[c] - getattr(clean, c))[data.held] ** 2) / data.sigma[c] ** 2
-                for c in ("rpm", "current")
-            ]
-        )
+    return _noise_units(
+        lambda c: (sim[c] - getattr(clean, c))[data.held], data.sigma, ("rpm", "current")
     )
 
 
@@ -103,13 +107,8 @@ def _visibility(case: Case, data: Measured, seed: int) -> dict[str, float]:
     for name in case.hidden:
         bare = replace(without_effects(case.unit, (name,)), spread=0.0, measurement=Measurement())
         sim = simulate(bare, case.clean.t, case.clean.command, seed=seed)
-        out[name] = float(
-            np.mean(
-                [
-                    np.mean((getattr(sim, c) - getattr(case.clean, c)) ** 2) / data.sigma[c] ** 2
-                    for c in CHANNELS
-                ]
-            )
+        out[name] = _noise_units(
+            lambda c, sim=sim: getattr(sim, c) - getattr(case.clean, c), data.sigma, CHANNELS
         )
     return out
 
@@ -204,7 +203,7 @@ def _summary(rows: list[dict]) -> list[str]:
         )
         seen = [v for r in both for v in r.get("visibility", {}).values()]
         if seen:
-            faint = [r for r in both if min(r.get("visibility", {}).values(), default=2.0) < 1.0]
+            faint = [r for r in both if any(v < 1.0 for v in r.get("visibility", {}).values())]
             out.append(
                 f"Visibility of the hidden effects (noise-free response with against without "
                 f"each, mean square in noise variances): median {statistics.median(seen):.1f}, "

@@ -317,15 +317,15 @@ def plausible_ranges(config: SimConfig) -> dict[str, tuple[str, float, float]]:
     """
     w0, torque0, current0 = _full_command(load_config("t100"))
     w1, torque1, current1 = _full_command(config)
-    first = replace(config, structure=replace(config.structure, esc_tau2_s=0.0))
     scale = {
         "coulomb_friction": torque1 / torque0,
         "viscous_friction": (torque1 / w1) / (torque0 / w0),
         "voltage_sag": current0 / current1,
         "current_limit": current1 / current0,
     }
-    if config.effect("esc_lag") is not None:
-        scale["slew_rate_limit"] = peak_duty_rate(config) / peak_duty_rate(first)
+    lag = config.effect("esc_lag")
+    if lag is not None:  # the lag alone peaks at 1 / tau_s
+        scale["slew_rate_limit"] = peak_duty_rate(config) * lag.tau_s
     return {
         name: (attr, lo * scale.get(name, 1.0), hi * scale.get(name, 1.0))
         for name, (attr, lo, hi) in PLAUSIBLE.items()
