@@ -46,6 +46,7 @@ from thruster_fdd.core.discrepancy.report import (
 from thruster_fdd.core.discrepancy.search import (
     MIN_GAIN,
     SECOND_STAGE,
+    WIDE_RANGE,
     Candidate,
     Result,
     _choose,
@@ -319,6 +320,12 @@ def test_base_changes_offer_removing_the_start_drive_saturation() -> None:
     assert lean.params.esc_v_sat_v == float("inf")
     assert replace(lean.params, esc_v_sat_v=t200.params.esc_v_sat_v) == t200.params
     assert not any(c.no_drive_saturation for c in changes(lean, t200))
+    # Only a base parameter found on its bound is widened (and counted so by ``_choose``).
+    assert not any(c.widened for c in changes(t100, t100))
+    heavy = replace(t100, params=replace(t100.params, inertia=t100.params.inertia * BASE_RANGE))
+    [wide] = [c for c in changes(heavy, t100) if c.widened]
+    assert wide.label == "base: inertia within x4"
+    assert wide.ranges == {"params.inertia": WIDE_RANGE}
 
 
 def test_second_esc_stage_starts_from_a_grid_and_is_accepted_like_an_effect() -> None:
@@ -388,6 +395,22 @@ def test_choice_between_near_equal_candidates_goes_by_bic() -> None:
     assert _choose([drive, coulomb])[0].name == "coulomb_friction"
     assert _choose([drive, final("coulomb_friction", 1.90, -3601.0)])[0].name == drive[0].name
     assert _choose([]) == (None, None)
+
+
+def test_a_widened_bound_goes_before_an_effect_it_ties_with() -> None:
+    """Within 5 % a widened bound is taken before an effect of lower BIC (t200 mismatch seed
+    525: a deadband standing in for an out-of-range inertia), but not when clearly worse."""
+    config = load_config("t100")
+
+    def final(name: str, score: float, bic: float) -> tuple[Candidate, Fit]:
+        fit = Fit(config, (), np.zeros(0), np.zeros(0), bic, Gap(0, 0, 1, 1, 0, score), 0)
+        return Candidate(name, fit, 0.0, 0.5, True, 0.5), fit
+
+    wide = "base: inertia within x4"
+    deadband = final("deadband", 0.99, -27883.0)
+    assert _choose([deadband, final(wide, 1.00, -26153.0)], [wide])[0].name == wide
+    assert _choose([deadband, final(wide, 1.00, -26153.0)])[0].name == "deadband"
+    assert _choose([deadband, final(wide, 1.10, -26153.0)], [wide])[0].name == "deadband"
 
 
 def test_start_config_drop() -> None:
