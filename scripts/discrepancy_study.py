@@ -55,7 +55,7 @@ from thruster_fdd.core.discrepancy.cases import (
 from thruster_fdd.core.discrepancy.fit import without_effects
 from thruster_fdd.core.discrepancy.measure import CHANNELS, Measured, simulate_model
 from thruster_fdd.core.discrepancy.report import FRICTION_UNITS, friction_currents
-from thruster_fdd.core.discrepancy.search import run_workflow
+from thruster_fdd.core.discrepancy.search import SAME_CHOICE, run_workflow
 from thruster_fdd.core.sim.config import Measurement, SimConfig
 from thruster_fdd.core.sim.physics import simulate
 from thruster_fdd.core.traces.data import Trace
@@ -161,7 +161,14 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "gap_after": rep["gap_after"],
         "wall_s": time.perf_counter() - t0,
         "visibility": _visibility(case, data, seed),
+        "rivals": [[rnd.chosen, name] for rnd in result.rounds for name, _s, _b in rnd.rivals],
     }
+
+
+def _undecided(row: dict) -> bool:
+    """Whether a hidden effect the run did not name was a rival of what a round took."""
+    unnamed = set(row["hidden"]) - set(row["named"])
+    return any(rival in unnamed for _chosen, rival in row.get("rivals", []))
 
 
 def upper_bound(failures: int, runs: int, confidence: float = 0.95) -> float:
@@ -210,6 +217,13 @@ def _summary(rows: list[dict]) -> list[str]:
                 f"least {min(seen):.2f}; runs with one under 1: {len(faint)}, named exactly "
                 f"{sum(map(exact, faint))}."
             )
+        misses = [r for r in both if not exact(r)]
+        undecided = [r for r in misses if _undecided(r)]
+        out.append(
+            f"Misses where a hidden effect the search did not name fitted as well as what it "
+            f"took in a round (within {100 * SAME_CHOICE:g} %; report.md: choices the data do "
+            f"not decide): {len(undecided)}/{len(misses)}."
+        )
         cur = [e for r in both for e in r.get("friction_current_error", {}).values()]
         torque = [e for r in both for n, e in r["param_error"].items() if n in FRICTION_UNITS]
         if cur:

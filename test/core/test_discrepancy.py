@@ -40,6 +40,7 @@ from thruster_fdd.core.discrepancy.report import (
     REPORT_FILES,
     _fmt,
     _friction_currents,
+    _undecided,
     check_out_dir,
     write_report,
 )
@@ -49,6 +50,7 @@ from thruster_fdd.core.discrepancy.search import (
     WIDE_RANGE,
     Candidate,
     Result,
+    Round,
     _choose,
     base_changes,
     run_workflow,
@@ -395,6 +397,26 @@ def test_choice_between_near_equal_candidates_goes_by_bic() -> None:
     assert _choose([drive, coulomb])[0].name == "coulomb_friction"
     assert _choose([drive, final("coulomb_friction", 1.90, -3601.0)])[0].name == drive[0].name
     assert _choose([]) == (None, None)
+
+
+def test_a_choice_the_data_do_not_decide_is_reported() -> None:
+    """A fully calibrated candidate within 5 % of the one taken is its rival, and report.md
+    lists it (exact-base seed 582: the drive losses taken over a hidden Coulomb torque, 1.20
+    against 1.21 held-out); one clearly worse is not."""
+    config = load_config("t100")
+    fit = Fit(config, (), np.zeros(0), np.zeros(0), 0.0, Gap(0, 0, 1, 1, 0, 3.46), 0)
+    drive = ("base: drive losses", 1.20, -3393.6)
+    taken = Round(fit, (), drive[0], (drive, ("coulomb_friction", 1.21, -3393.0)))
+    assert taken.rivals == (("coulomb_friction", 1.21, -3393.0),)
+    assert Round(fit, (), drive[0], (drive, ("coulomb_friction", 1.30, -3393.0))).rivals == ()
+    assert Round(fit, (), None).rivals == ()
+    text = "\n".join(_undecided(Result("effects_found", fit, fit, (), (taken,), ())))
+    assert "Choices the data do not decide" in text
+    assert (
+        "| 1 | `base: drive losses` | 1.20 / -3393.6 | `coulomb_friction` | 1.21 / -3393.0 |"
+        in text
+    )
+    assert _undecided(Result("nothing_missing", fit, fit, (), (), ())) == []
 
 
 def test_a_widened_bound_goes_before_an_effect_it_ties_with() -> None:

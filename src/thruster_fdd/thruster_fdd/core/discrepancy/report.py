@@ -220,6 +220,34 @@ def _friction_currents(result: Result) -> list[str]:
     return ["", *out] if out else []
 
 
+def _undecided(result: Result) -> list[str]:
+    """report.md lines: the rounds in which another candidate fitted about as well as the one
+    taken (``Round.rivals``)."""
+    rows = []
+    for k, rnd in enumerate(result.rounds, 1):
+        taken = {name: (score, bic) for name, score, bic in rnd.finals}.get(rnd.chosen)
+        for name, score, bic in rnd.rivals if taken is not None else ():
+            rows.append(
+                f"| {k} | `{rnd.chosen}` | {taken[0]:.2f} / {taken[1]:.1f} | `{name}` | "
+                f"{score:.2f} / {bic:.1f} |"
+            )
+    if not rows:
+        return []
+    return [
+        "",
+        "## Choices the data do not decide",
+        "",
+        f"In these rounds another candidate fitted the held-out data within "
+        f"{100 * SAME_CHOICE:g} % of the one taken, and the BIC decided (a widened bound "
+        "first). The thruster may hold the other instead; a run that excites where the two "
+        "differ, or a bench measurement of what they change, would tell.",
+        "",
+        "| round | taken | held-out score / BIC | as good | held-out score / BIC |",
+        "|---|---|---|---|---|",
+        *rows,
+    ]
+
+
 def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[str]) -> str:
     """The report.md text."""
     rep = result.report()
@@ -261,6 +289,7 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         "",
     ]
     lines += [f"- warning: {w}" for w in result.warnings]
+    lines += _undecided(result)
     lines += ["", "## Named missing effects", ""]
     if rep["missing_effects"]:
         lines += ["| effect | parameter | value | std |", "|---|---|---|---|"]
@@ -382,6 +411,11 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
         "rounds": [
             {
                 "chosen": rnd.chosen,
+                "finals": [
+                    {"name": name, "held_out_score": score, "bic": bic}
+                    for name, score, bic in rnd.finals
+                ],
+                "rivals": [name for name, _score, _bic in rnd.rivals],
                 "candidates": [
                     {
                         "name": c.name,

@@ -29,6 +29,7 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
+from typing import TypeVar
 
 import numpy as np
 from tqdm import tqdm
@@ -132,11 +133,32 @@ class Candidate:
 
 @dataclass(frozen=True)
 class Round:
-    """One search round: the calibrated model it starts from and every candidate's result."""
+    """One search round.
+
+    Attributes
+    ----------
+    before : Fit
+        The calibrated model it starts from.
+    candidates : tuple of Candidate
+        Every candidate's result.
+    chosen : str or None
+        The candidate taken (an effect name or a base change's label), if any.
+    finals : tuple of (str, float, float)
+        The fully calibrated candidates the choice was between: name, held-out score, BIC.
+    """
 
     before: Fit
     candidates: tuple[Candidate, ...]
     chosen: str | None
+    finals: tuple[tuple[str, float, float], ...] = ()
+
+    @property
+    def rivals(self) -> tuple[tuple[str, float, float], ...]:
+        """Finals not chosen whose held-out score is within ``SAME_CHOICE`` of the best: the
+        data fit them about as well as the chosen one (``_tied``)."""
+        tied = _tied([(name, score) for name, score, _bic in self.finals], lambda f: f[1])
+        names = {name for name, _score in tied}
+        return tuple(f for f in self.finals if f[0] in names and f[0] != self.chosen)
 
 
 @dataclass(frozen=True)
@@ -568,6 +590,9 @@ def try_base_change(
     return Candidate(change.label, fit, delta_bic, gain, accepted, gain)
 
 
+T = TypeVar("T")
+
+
 SAME_CHOICE = 0.05
 """Relative tolerance of held-out scores within which ``_choose`` decides by BIC."""
 
@@ -678,6 +703,14 @@ def _retest(
     return current, gone
 
 
+def _tied(items: Sequence[T], score: Callable[[T], float]) -> list[T]:
+    """``items`` whose held-out ``score`` is within ``SAME_CHOICE`` of the best."""
+    if not items:
+        return []
+    top = min(score(item) for item in items)
+    return [item for item in items if score(item) <= top * (1.0 + SAME_CHOICE)]
+
+
 def _choose(
     finals: Sequence[tuple[Candidate, Fit]], widenings: Collection[str] = ()
 ) -> tuple[Candidate | None, Fit | None]:
@@ -692,8 +725,7 @@ def _choose(
     -26153; with the deadband taken the widening was not tried again)."""
     if not finals:
         return None, None
-    top = min(full.gap.score for _c, full in finals)
-    tied = [cf for cf in finals if cf[1].gap.score <= top * (1.0 + SAME_CHOICE)]
+    tied = _tied(finals, lambda cf: cf[1].gap.score)
     tied = [cf for cf in tied if cf[0].name in widenings] or tied
     return min(tied, key=lambda cf: cf[1].bic)
 
@@ -805,7 +837,12 @@ def search(
             )
         chosen, best = _choose(finals, [ch.label for ch in changes if ch.widened])
         rounds.append(
-            Round(before=current, candidates=tuple(results), chosen=chosen.name if chosen else None)
+            Round(
+                before=current,
+                candidates=tuple(results),
+                chosen=chosen.name if chosen else None,
+                finals=tuple((c.name, full.gap.score, full.bic) for c, full in finals),
+            )
         )
         if chosen is None or best is None:
             break
