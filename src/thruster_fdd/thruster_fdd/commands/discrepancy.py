@@ -73,5 +73,7 @@ def run(args: argparse.Namespace) -> int:
     write_report(result, data, args.out)
     named = ", ".join(result.added) or "none"
     extra = ", ".join(m["name"] for m in result.report()["superfluous_effects"]) or "none"
-    print(f"{result.verdict}: missing {named}; superfluous {extra}; report in {args.out}")
+    undecided = [f"{n} as good as {rnd.chosen}" for rnd in result.rounds for n, *_ in rnd.rivals]
+    also = f"; undecided: {'; '.join(undecided)}" if undecided else ""
+    print(f"{result.verdict}: missing {named}; superfluous {extra}{also}; report in {args.out}")
     return EXIT_OK
