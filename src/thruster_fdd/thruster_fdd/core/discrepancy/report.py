@@ -225,10 +225,12 @@ def _undecided(result: Result) -> list[str]:
     taken (``Round.rivals``)."""
     rows = []
     for k, rnd in enumerate(result.rounds, 1):
-        taken = {name: (score, bic) for name, score, bic in rnd.finals}.get(rnd.chosen)
-        for name, score, bic in rnd.rivals if taken is not None else ():
+        taken = next((f for f in rnd.finals if f[0] == rnd.chosen), None)
+        if taken is None:
+            continue
+        for name, score, bic in rnd.rivals:
             rows.append(
-                f"| {k} | `{rnd.chosen}` | {taken[0]:.2f} / {taken[1]:.1f} | `{name}` | "
+                f"| {k} | `{rnd.chosen}` | {taken[1]:.2f} / {taken[2]:.1f} | `{name}` | "
                 f"{score:.2f} / {bic:.1f} |"
             )
     if not rows:

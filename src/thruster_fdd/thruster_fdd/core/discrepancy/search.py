@@ -156,9 +156,7 @@ class Round:
     def rivals(self) -> tuple[tuple[str, float, float], ...]:
         """Finals not chosen whose held-out score is within ``SAME_CHOICE`` of the best: the
         data fit them about as well as the chosen one (``_tied``)."""
-        tied = _tied([(name, score) for name, score, _bic in self.finals], lambda f: f[1])
-        names = {name for name, _score in tied}
-        return tuple(f for f in self.finals if f[0] in names and f[0] != self.chosen)
+        return tuple(f for f in _tied(self.finals, lambda f: f[1]) if f[0] != self.chosen)
 
 
 @dataclass(frozen=True)
@@ -594,7 +592,8 @@ T = TypeVar("T")
 
 
 SAME_CHOICE = 0.05
-"""Relative tolerance of held-out scores within which ``_choose`` decides by BIC."""
+"""Relative tolerance of held-out scores within which ``_choose`` decides by BIC (and a round's
+other candidates count as ``Round.rivals``: the data fit them about as well)."""
 
 
 SAME_SCORE = 0.01
