@@ -511,7 +511,14 @@ class BaseChange:
 
     def apply(self, config: SimConfig, data: Measured) -> SimConfig:
         """``config`` with the change, from the start that fits ``data`` best."""
-        return min(self.starts(config), key=lambda c: _score_config(c, data))
+        return _best_start(self.starts(config), data)
+
+
+def _best_start(starts: Sequence[SimConfig], data: Measured) -> SimConfig:
+    """The one of ``starts`` that fits the fit samples best (a single one is not simulated)."""
+    if len(starts) == 1:
+        return starts[0]
+    return min(starts, key=lambda c: _score_config(c, data))
 
 
 def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -> list[BaseChange]:
@@ -576,12 +583,13 @@ def try_base_change(
     # Full calibrations (12 iterations, not CANDIDATE_ITER): a base change re-shapes the whole
     # model, and from a model distorted by a parameter on its bound 6 iterations fall short
     # (an out-of-range k_q and a hidden dead time: 6 remove 43 % of the excess, 12 most of it).
+    starts = [change.starts(c) for c in (base.config, named)]
     fits = [
-        calibrate(change.apply(c, data), data, anchor=config, ranges=change.ranges)
-        for c in (base.config, named)
+        calibrate(_best_start(s, data), data, anchor=config, ranges=change.ranges) for s in starts
     ]
     fit = min(fits, key=lambda f: f.bic)
-    fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + 2 * len(change.starts(named)))
+    scored = sum(len(s) for s in starts if len(s) > 1)
+    fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + scored)
     delta_bic = fit.bic - base.bic
     gain = (base.gap.score - fit.gap.score) / max(base.gap.score - 1.0, 1e-12)
     accepted = delta_bic < 0.0 and gain >= change.min_gain
