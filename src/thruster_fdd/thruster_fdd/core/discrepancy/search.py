@@ -357,7 +357,8 @@ def try_candidate(
     held-out gain of at least ``MIN_GAIN`` of the excess error (above noise), and the effect
     itself must account for at least ``MIN_GAIN`` of the excess on the fit samples: removing it
     from the re-fit must cost that much (so a candidate is not credited with a better fit of
-    the other parameters).
+    the other parameters). A re-fit that meets the first and the last but not the held-out
+    gain is fitted on to a full calibration (``FULL_ITER``) and judged again.
     """
     starts = []
     n_trials = 0
@@ -375,6 +376,30 @@ def try_candidate(
     ]
     fit = min(fits, key=lambda f: f.bic)
     fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + n_trials)
+    delta_bic, gain, own_gain = _judge(name, fit, base, data)
+    fit = replace(fit, n_sims=fit.n_sims + 3)
+    if delta_bic < 0.0 and own_gain >= MIN_GAIN and gain < MIN_GAIN:
+        # The effect carries the re-fit on the fit samples but the held-out error has not
+        # followed yet: the short re-fit is unfinished, not the effect refuted (a 0.66 s dead
+        # time behind a second-order ESC, t100 mismatch: held-out 47 after 6 iterations, 1.1
+        # after 12). It is judged after a full calibration from there.
+        more = calibrate(fit.config, data, anchor=anchor, ranges=ranges)
+        delta_bic, gain, own_gain = _judge(name, more, base, data)
+        fit = replace(more, n_sims=more.n_sims + fit.n_sims + 3)
+    accepted = delta_bic < 0.0 and gain >= MIN_GAIN and own_gain >= MIN_GAIN
+    return Candidate(
+        name=name,
+        fit=fit,
+        delta_bic=delta_bic,
+        gain=gain,
+        accepted=accepted,
+        own_gain=own_gain,
+    )
+
+
+def _judge(name: str, fit: Fit, base: Fit, data: Measured) -> tuple[float, float, float]:
+    """BIC change of ``fit`` over ``base``, its held-out gain (fraction of ``base``'s excess
+    error) and the gain effect ``name`` accounts for itself on the fit samples."""
     delta_bic = fit.bic - base.bic  # both penalise all their parameters
     excess = max(base.gap.score - 1.0, 1e-12)
     gain = (base.gap.score - fit.gap.score) / excess
@@ -387,17 +412,7 @@ def try_candidate(
     base_fit = gap(simulate_model(base.config, data), data, data.fit).score
     fit_score = gap(simulate_model(fit.config, data), data, data.fit).score
     ablated_score = gap(simulate_model(ablated, data), data, data.fit).score
-    own_gain = (ablated_score - fit_score) / max(base_fit - 1.0, 1e-12)
-    fit = replace(fit, n_sims=fit.n_sims + 3)
-    accepted = delta_bic < 0.0 and gain >= MIN_GAIN and own_gain >= MIN_GAIN
-    return Candidate(
-        name=name,
-        fit=fit,
-        delta_bic=delta_bic,
-        gain=gain,
-        accepted=accepted,
-        own_gain=own_gain,
-    )
+    return delta_bic, gain, (ablated_score - fit_score) / max(base_fit - 1.0, 1e-12)
 
 
 def _run_candidate(args: tuple) -> Candidate:
