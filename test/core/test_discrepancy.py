@@ -358,9 +358,9 @@ def test_second_esc_stage_starts_from_a_grid_and_is_accepted_like_an_effect() ->
 
 def test_a_candidate_whose_short_refit_is_unfinished_is_judged_after_a_full_one() -> None:
     """t100 mismatch tuning seed 9 (second-order ESC, drive saturation, winding loss; a
-    0.45 s dead time and a current limit hidden): the dead time's 6-iteration re-fit from the
-    calibrated start carries the fit samples (its own gain 3.7) while the held-out error grows
-    (70 -> 94); fitted on, it removes most of the excess and is accepted."""
+    0.45 s dead time and a current limit hidden): the dead time's 6-iteration re-fit carries
+    the fit samples (its own gain 3.7) while the held-out error grows (70 -> 94); fitted on,
+    it removes most of the excess and is accepted."""
     case = make_mismatch_case(("dead_time", "current_limit"), 9)
     data = prepare_measured(case.trace, case.start)
     start = calibrate(case.start, data)
