@@ -318,6 +318,7 @@ def test_base_changes_offer_removing_the_start_drive_saturation() -> None:
 
     [change] = [c for c in changes(t200, t200) if c.no_drive_saturation]
     assert change.label == "base: no drive saturation"
+    assert change.min_gain == MIN_GAIN  # a term of the model's own form, like the drive losses
     assert not any(c.no_drive_saturation for c in changes(t100, t100))
     [lean] = change.starts(t200)
     assert lean.params.esc_v_sat_v == float("inf")
@@ -450,6 +451,21 @@ def test_a_widened_bound_goes_before_an_effect_it_ties_with() -> None:
     assert _choose([deadband, final(wide, 1.00, -26153.0)], [wide])[0].name == wide
     assert _choose([deadband, final(wide, 1.00, -26153.0)])[0].name == "deadband"
     assert _choose([deadband, final(wide, 1.10, -26153.0)], [wide])[0].name == "deadband"
+
+
+def test_a_second_esc_stage_goes_before_a_dead_time_it_ties_with() -> None:
+    """t100 mismatch null trace 782 (a 0.058 s second ESC stage, nothing hidden): a 0.045 s
+    dead time fits as well as the stage (held-out 1.00 both) with a lower BIC; taken first it
+    was named. The stage goes first, and nothing is named."""
+    case = make_mismatch_case((), 782)
+    assert "second_order_esc" in case.switches
+    assert not case.hidden
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert result.added == ()
+    assert result.verdict == "nothing_missing"
+    assert result.final.config.structure.esc_tau2_s == pytest.approx(
+        case.unit.structure.esc_tau2_s, rel=0.3
+    )
 
 
 def test_start_config_drop() -> None:
