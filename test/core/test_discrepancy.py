@@ -468,6 +468,19 @@ def test_a_second_esc_stage_goes_before_a_dead_time_it_ties_with() -> None:
     )
 
 
+def test_a_start_winding_loss_unlike_the_thruster_is_refitted() -> None:
+    """t200 mismatch null trace 586 (no drive saturation; a winding loss 0.6 times the
+    start's): with the start's loss kept, r_ohm went to its bound and a 0.038 deadband was
+    named (held-out 5.4). Re-fitted as a base change, the loss comes within 20 % of the
+    thruster's (it trades a little with r_ohm) and nothing is named."""
+    case = make_mismatch_case((), 586, preset="t200")
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert result.verdict == "nothing_missing"
+    assert result.final.config.params.r_speed_ohm_s == pytest.approx(
+        case.unit.params.r_speed_ohm_s, rel=0.2
+    )
+
+
 def test_start_config_drop() -> None:
     t100 = load_config("t100")
     config, warnings = start_config(t100, ["deadband", "slew_rate_limit"])
@@ -562,14 +575,16 @@ def test_base_parameters_stay_near_the_anchor() -> None:
 @pytest.mark.skipif(not T200_DATA.is_dir(), reason=f"T200 measurements not found at {T200_DATA}")
 def test_t200_bench_data_names_the_deadband(load_script) -> None:
     """Real data: all six T200 sheets as a step trace, the t200 preset without its deadband.
-    The deadband is named, its width within 5 % of the preset's steady-state calibration
-    (scripts/calibrate_t200.py, an independent fit of the same sheets), and nothing else."""
+    The deadband is named, its width within 10 % of the preset's steady-state calibration
+    (scripts/calibrate_t200.py, an independent fit of the same sheets; issue 14's goal), and
+    nothing else. (Since the winding loss is re-fitted as a base change, 0.0310, 8.8 % off;
+    1.9 % before, with the held-out score twice as high.)"""
     trace = load_script("t200_to_trace").steps_trace(T200_DATA)
     t200 = load_config("t200")
     result, _ = run_workflow(trace, t200, ["deadband"], workers=1, progress=False)
     assert result.added == ("deadband",)
     width = result.final.config.effect("deadband").width
-    assert abs(width / t200.effect("deadband").width - 1.0) <= 0.05
+    assert abs(width / t200.effect("deadband").width - 1.0) <= 0.10
     assert result.final.gap.rpm_rmse <= 0.7 * result.start.gap.rpm_rmse
 
 

@@ -46,7 +46,8 @@ wrong splits of the delay), only behind an ``esc_lag`` and never slower than it 
 cascade commute: ordering them removes a symmetry of the fit). A term the anchor has was
 calibrated with it and is kept: refitted by simulation error it trades against the effects (on
 the T200 bench trace the t200's drive loss and speed-dependent resistance absorb the deadband:
-0.0093 instead of 0.034)."""
+0.0093 instead of 0.034), unless the search adopted its re-fit as a base change (``ranges``
+holds its key: the winding loss, ``search.base_changes``)."""
 
 
 DRIVE_LOSSES = ("params.esc_v_sat_v", "params.r_speed_ohm_s", "structure.i_idle_per_krpm_a")
@@ -59,7 +60,7 @@ friction singles named exactly in 25 of 40 cases, 37 of 40 without them)."""
 
 PRESENT_RANGE = 1.0
 """Factor around the anchor within which structural terms the anchor has are re-fitted
-(1: kept)."""
+(1: kept; a factor in ``calibrate``'s ``ranges`` frees one within it)."""
 
 
 FULL_ITER = 30
@@ -194,7 +195,7 @@ def free_parameters(
 
     def free(key: str, absent: float) -> bool:
         if _get(anchor, key) != absent:
-            return PRESENT_RANGE > 1.0
+            return PRESENT_RANGE > 1.0 or key in ranges
         return _second_stage(config) if key == _TAU2 else key in ranges
 
     keys = [f"params.{n}" for n in BASE_FIT]
@@ -233,7 +234,7 @@ def _spec(config: SimConfig, key: str, anchor: SimConfig, factor: float) -> _Par
         return _linear(key, value, 0.05, _get(anchor, key) + 2.0)
     present = key in STRUCTURE_FIT and _get(anchor, key) != STRUCTURE_FIT[key]
     if present and key.startswith("params."):
-        return _bounded_log(key, value, _get(anchor, key), PRESENT_RANGE)
+        return _bounded_log(key, value, _get(anchor, key), max(factor, PRESENT_RANGE))
     if key == "params.esc_v_sat_v":
         # Fitted as g = 1 / v_sat in [0, 1/20] per V (v_sat >= 20 V: 43 % drive loss at 15 V).
         g = 1.0 / value
