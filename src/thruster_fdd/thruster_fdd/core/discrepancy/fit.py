@@ -58,11 +58,6 @@ absorbed friction on traces of the start's own build (exact-base study, seeds 30
 friction singles named exactly in 25 of 40 cases, 37 of 40 without them)."""
 
 
-PRESENT_RANGE = 1.0
-"""Factor around the anchor within which structural terms the anchor has are re-fitted
-(1: kept; a factor in ``calibrate``'s ``ranges`` frees one within it)."""
-
-
 FULL_ITER = 30
 """Least-squares iterations of a full calibration (``calibrate``'s default; most stop earlier,
 on ``ftol``). 12 left fits from a far start (a superfluous dead time, k_q outside its range)
@@ -195,7 +190,8 @@ def free_parameters(
 
     def free(key: str, absent: float) -> bool:
         if _get(anchor, key) != absent:
-            return PRESENT_RANGE > 1.0 or key in ranges
+            # Kept unless the search freed it (a factor around the anchor in ``ranges``).
+            return key in ranges
         return _second_stage(config) if key == _TAU2 else key in ranges
 
     keys = [f"params.{n}" for n in BASE_FIT]
@@ -234,7 +230,7 @@ def _spec(config: SimConfig, key: str, anchor: SimConfig, factor: float) -> _Par
         return _linear(key, value, 0.05, _get(anchor, key) + 2.0)
     present = key in STRUCTURE_FIT and _get(anchor, key) != STRUCTURE_FIT[key]
     if present and key.startswith("params."):
-        return _bounded_log(key, value, _get(anchor, key), max(factor, PRESENT_RANGE))
+        return _bounded_log(key, value, _get(anchor, key), factor)
     if key == "params.esc_v_sat_v":
         # Fitted as g = 1 / v_sat in [0, 1/20] per V (v_sat >= 20 V: 43 % drive loss at 15 V).
         g = 1.0 / value
