@@ -581,8 +581,9 @@ def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -
                 min_gain=MIN_GAIN,
             )
         )
+    absent = lacking_drive_losses(config)
     winding = "params.r_speed_ohm_s"
-    if winding not in ranges and winding not in lacking_drive_losses(config):
+    if winding not in ranges and winding not in absent:
         # A term the start has is kept by the calibration; re-fitted here, like the drive
         # losses, by an effect's rule (t200 mismatch seed 586: the start's winding loss 1.7
         # times the thruster's, r_ohm on its bound and a 0.038 deadband named in its place at
@@ -594,7 +595,7 @@ def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -
                 min_gain=MIN_GAIN,
             )
         )
-    lacking = tuple(k for k in lacking_drive_losses(config) if k not in ranges)
+    lacking = tuple(k for k in absent if k not in ranges)
     if lacking:
         names = ", ".join(k.split(".")[1] for k in lacking)
         free = {**ranges, **dict.fromkeys(lacking, math.inf)}
@@ -619,7 +620,8 @@ def try_base_change(
     remove 27 % of the excess and leave the deadband 21 % small); the drive losses, terms of
     the model's own form, by an effect's rules (``MIN_GAIN``: held to ``BASE_GAIN``, a drive
     loss removing 49 % lost to a viscous friction standing in for it with 42 %), and so are
-    a second ESC stage and the removal of the start's drive saturation."""
+    a second ESC stage, the removal of the start's drive saturation and the re-fit of its
+    winding loss."""
     # Full calibrations (12 iterations, not CANDIDATE_ITER): a base change re-shapes the whole
     # model, and from a model distorted by a parameter on its bound 6 iterations fall short
     # (an out-of-range k_q and a hidden dead time: 6 remove 43 % of the excess, 12 most of it).
