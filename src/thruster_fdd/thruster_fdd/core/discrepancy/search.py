@@ -372,9 +372,9 @@ def try_candidate(
     parameters) and a held-out gain of at least ``MIN_GAIN`` of the excess error (above
     noise), and the effect itself must account for at least ``MIN_GAIN`` of the excess on the
     fit samples: removing it from the re-fit must cost that much (so a candidate is not
-    credited with a better fit of the other parameters). A re-fit that has a lower BIC and
-    the last but not the held-out gain is fitted on to a full calibration (``FULL_ITER``) and
-    judged again.
+    credited with a better fit of the other parameters). A re-fit that lowers the BIC (by
+    any amount) and has the own gain but not the held-out gain is fitted on to a full
+    calibration (``FULL_ITER``) and judged again.
     """
     starts = []
     n_trials = 0
@@ -413,12 +413,17 @@ def try_candidate(
     )
 
 
+def _excess_gain(before: float, after: float) -> float:
+    """Fraction of ``before``'s excess over the noise level (held-out score 1) that a model
+    scoring ``after`` removes (the excess floored at 1e-12)."""
+    return (before - after) / max(before - 1.0, 1e-12)
+
+
 def _judge(name: str, fit: Fit, base: Fit, data: Measured) -> tuple[float, float, float]:
     """BIC change of ``fit`` over ``base``, its held-out gain (fraction of ``base``'s excess
     error) and the gain effect ``name`` accounts for itself on the fit samples."""
     delta_bic = fit.bic - base.bic  # both penalise all their parameters
-    excess = max(base.gap.score - 1.0, 1e-12)
-    gain = (base.gap.score - fit.gap.score) / excess
+    gain = _excess_gain(base.gap.score, fit.gap.score)
     # Ablation: the re-fitted model with the effect taken out again. The effect itself must
     # account for the gain, not the further re-fit of the other parameters that came with it.
     # Measured on the fit samples: an effect active in few places (a current limit binding for
@@ -638,7 +643,7 @@ def try_base_change(
     to ``BASE_GAIN``, a drive loss removing 49 % lost to a viscous friction standing in for
     it with 42 %), and so are a second ESC stage, the removal of the start's drive saturation
     and the re-fit of its winding loss."""
-    # Full calibrations (12 iterations, not CANDIDATE_ITER): a base change re-shapes the whole
+    # Full calibrations (FULL_ITER, not CANDIDATE_ITER): a base change re-shapes the whole
     # model, and from a model distorted by a parameter on its bound 6 iterations fall short
     # (an out-of-range k_q and a hidden dead time: 6 remove 43 % of the excess, 12 most of it).
     starts = [change.starts(c) for c in (base.config, named)]
@@ -649,7 +654,7 @@ def try_base_change(
     scored = sum(len(s) for s in starts if len(s) > 1)
     fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + scored)
     delta_bic = fit.bic - base.bic
-    gain = (base.gap.score - fit.gap.score) / max(base.gap.score - 1.0, 1e-12)
+    gain = _excess_gain(base.gap.score, fit.gap.score)
     accepted = delta_bic < -BIC_EVIDENCE and gain >= change.min_gain
     return Candidate(change.label, fit, delta_bic, gain, accepted, gain)
 
@@ -746,8 +751,9 @@ def _retest(
     say: Callable[[str], None],
 ) -> tuple[Fit, list[str]]:
     """Re-test effects named before a base change by ablation: each is removed and the model
-    fully re-calibrated; it stays if it still lowers the BIC and removes ``MIN_GAIN`` of the
-    excess held-out error of the model without it, as when it was added. Returns the model
+    fully re-calibrated; it stays if it still lowers the BIC (by any amount; adding it needed
+    ``BIC_EVIDENCE``) and removes ``MIN_GAIN`` of the excess held-out error of the model
+    without it. Returns the model
     and the effects dropped (a Coulomb friction named on a t100 mismatch trace before the
     drive losses were adopted explained nothing once they were: held-out score 1.11 either
     way)."""
@@ -756,7 +762,7 @@ def _retest(
         without = calibrate(
             without_effects(current.config, (name,)), data, anchor=config, ranges=ranges
         )
-        gain = (without.gap.score - current.gap.score) / max(without.gap.score - 1.0, 1e-12)
+        gain = _excess_gain(without.gap.score, current.gap.score)
         keep = without.bic > current.bic and gain >= MIN_GAIN
         say(
             f"  re-test {name}: without it dBIC {without.bic - current.bic:.1f}, held-out score "
@@ -878,7 +884,7 @@ def search(
             alone = {c.name: c for c in results}
             for c in _run_jobs(jobs, workers, progress, "candidates with a wider bound"):
                 before = alone[c.name].fit.gap.score
-                marginal = (before - c.fit.gap.score) / max(before - 1.0, 1e-12)
+                marginal = _excess_gain(before, c.fit.gap.score)
                 joint = replace(c, joint=widen, accepted=c.accepted and marginal >= BASE_GAIN)
                 results.append(joint)
             accepted = sorted((c for c in results if c.accepted), key=lambda c: c.fit.gap.score)
