@@ -161,7 +161,7 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "gap_after": rep["gap_after"],
         "wall_s": time.perf_counter() - t0,
         "visibility": _visibility(case, data, seed),
-        "rivals": [[rnd.chosen, name] for rnd in result.rounds for name, _s, _b in rnd.rivals],
+        "rivals": [[rnd.chosen, name] for rnd in result.rounds for name, *_ in rnd.rivals],
     }
 
 

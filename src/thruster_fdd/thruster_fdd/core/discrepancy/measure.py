@@ -33,6 +33,11 @@ N_BLOCKS = 10
 HELD_BLOCKS = (2, 5, 8)
 
 
+FOLDS = ((0, 5), (1, 6), (2, 7), (3, 8), (4, 9))
+"""Held-out blocks of the cross-validation folds (``with_held``): each block held out once,
+each fold two blocks half the trace apart."""
+
+
 @dataclass(frozen=True)
 class Measured:
     """A measured trace prepared for fitting.
@@ -69,6 +74,18 @@ class Measured:
     def channel(self, name: str) -> np.ndarray:
         """Measured samples of channel ``name`` (one of ``CHANNELS``), shape (n,)."""
         return getattr(self, name)
+
+
+def _held(n: int, blocks: tuple[int, ...]) -> np.ndarray:
+    """Mask of shape (n,): the samples of ``blocks`` of ``N_BLOCKS`` equal interleaved ones."""
+    block = np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
+    return np.isin(block, blocks)
+
+
+def with_held(data: Measured, blocks: tuple[int, ...]) -> Measured:
+    """``data`` with ``blocks`` held out and the rest the fit samples (a fold of ``FOLDS``)."""
+    held = _held(len(data.t), blocks)
+    return replace(data, fit=~held, held=held)
 
 
 @dataclass(frozen=True)
@@ -194,8 +211,7 @@ def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
     }
     sigma = {c: _noise_sigma(cols[c], floors[c]) for c in CHANNELS}
     clean = {c: _despike(cols[c], sigma[c], cols["command"]) for c in CHANNELS}
-    block = np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
-    held = np.isin(block, HELD_BLOCKS)
+    held = _held(n, HELD_BLOCKS)
     dt = float(np.median(np.diff(cols["t"])))
     rpm_floor, floor_zeroes_current = reporting_floor(cols["rpm"], cols["current"])
     return Measured(

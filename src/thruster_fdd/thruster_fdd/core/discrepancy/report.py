@@ -17,6 +17,7 @@ import numpy as np
 from thruster_fdd.core.atomic import replaced_dir, write_text
 from thruster_fdd.core.discrepancy.fit import BASE_FIT, BASE_RANGE, Fit
 from thruster_fdd.core.discrepancy.measure import (
+    FOLDS,
     Measured,
     describe,
     regions,
@@ -228,9 +229,9 @@ def _undecided(result: Result) -> list[str]:
         taken = next((f for f in rnd.finals if f[0] == rnd.chosen), None)
         if taken is None:
             continue
-        for name, score, bic in rnd.rivals:
+        for name, _held, score, bic in rnd.rivals:
             rows.append(
-                f"| {k} | `{rnd.chosen}` | {taken[1]:.2f} / {taken[2]:.1f} | `{name}` | "
+                f"| {k} | `{rnd.chosen}` | {taken[2]:.2f} / {taken[3]:.1f} | `{name}` | "
                 f"{score:.2f} / {bic:.1f} |"
             )
     if not rows:
@@ -239,12 +240,12 @@ def _undecided(result: Result) -> list[str]:
         "",
         "## Choices the data do not decide",
         "",
-        f"In these rounds another candidate fitted the held-out data within "
-        f"{100 * SAME_CHOICE:g} % of the one taken, and the BIC decided (a widened bound "
-        "first). The thruster may hold the other instead; a run that excites where the two "
-        "differ, or a bench measurement of what they change, would tell.",
+        f"In these rounds another candidate fitted the held-out data (cross-validated over "
+        f"{len(FOLDS)} folds) within {100 * SAME_CHOICE:g} % of the one taken, and the BIC "
+        "decided (a widened bound first). The thruster may hold the other instead; a run that "
+        "excites where the two differ, or a bench measurement of what they change, would tell.",
         "",
-        "| round | taken | held-out score / BIC | as good | held-out score / BIC |",
+        "| round | taken | cross-validated score / BIC | as good | cross-validated score / BIC |",
         "|---|---|---|---|---|",
         *rows,
     ]
@@ -414,10 +415,10 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
             {
                 "chosen": rnd.chosen,
                 "finals": [
-                    {"name": name, "held_out_score": score, "bic": bic}
-                    for name, score, bic in rnd.finals
+                    {"name": name, "held_out_score": held, "cv_score": score, "bic": bic}
+                    for name, held, score, bic in rnd.finals
                 ],
-                "rivals": [name for name, _score, _bic in rnd.rivals],
+                "rivals": [name for name, *_ in rnd.rivals],
                 "candidates": [
                     {
                         "name": c.name,
