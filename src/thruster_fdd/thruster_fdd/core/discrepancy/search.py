@@ -927,49 +927,46 @@ def search(
         # is chosen. (A hidden viscous friction, for instance, is at first fitted better by a
         # Coulomb torque.)
         by_label = {ch.label: ch for ch in changes}
-        finals, bounds = [], []
+        finals = []  # (candidate, full calibration, its bounds)
         for c in accepted[:N_FINALS]:
             change = by_label.get(c.name) or c.joint
-            bounds.append(change.ranges if change else ranges)
-            if c.name in by_label:
-                finals.append((c, c.fit))
-            else:
-                finals.append((c, _recalibrate(config, origin, added, c, data, bounds[-1])))
+            wide = change.ranges if change else ranges
+            full = (
+                c.fit if c.name in by_label else _recalibrate(config, origin, added, c, data, wide)
+            )
+            finals.append((c, full, wide))
         # Between two or more, the held-out blocks alone are too few to choose (an exact-base
         # Coulomb torque, 60 s: the drive losses 1.20 there, the torque 1.27, the truth
         # itself 1.19; the folds' medians 1.25 against 1.21): each is re-fitted on every fold
         # of a cross-validation, from its full calibration.
-        scores = [full.gap.score for _c, full in finals]
+        scores = [full.gap.score for _c, full, _wide in finals]
         n_folds = 0
         if len(finals) > 1:
             jobs = [
                 (full.config, data, blocks, config, wide)
-                for (_c, full), wide in zip(finals, bounds, strict=True)
+                for _c, full, wide in finals
                 for blocks in FOLDS
             ]
             folds = _run_jobs(jobs, workers, progress, "cross-validation", _fold_fit, "fit")
             k = len(FOLDS)
             scores = [_cross_validated(folds[i * k : (i + 1) * k]) for i in range(len(finals))]
             n_folds = sum(f.n_sims for f in folds)
-        for (c, full), cv in zip(finals, scores, strict=True):
-            folded = f", cross-validated {cv:.2f}" if len(finals) > 1 else ""
+        scored = [(c, full, cv) for (c, full, _wide), cv in zip(finals, scores, strict=True)]
+        for c, full, cv in scored:
+            folded = f", cross-validated {cv:.2f}" if len(scored) > 1 else ""
             say(
                 f"  full calibration with {c.name}: held-out score {full.gap.score:.2f}"
                 f"{folded}, BIC {full.bic:.1f}"
             )
         chosen, best = _choose(
-            [(c, full, cv) for (c, full), cv in zip(finals, scores, strict=True)],
-            [ch.label for ch in changes if ch.widened or ch.second_stage],
+            scored, [ch.label for ch in changes if ch.widened or ch.second_stage]
         )
         rounds.append(
             Round(
                 before=current,
                 candidates=tuple(results),
                 chosen=chosen.name if chosen else None,
-                finals=tuple(
-                    (c.name, full.gap.score, cv, full.bic)
-                    for (c, full), cv in zip(finals, scores, strict=True)
-                ),
+                finals=tuple((c.name, full.gap.score, cv, full.bic) for c, full, cv in scored),
             )
         )
         if chosen is None or best is None:
