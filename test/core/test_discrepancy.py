@@ -48,6 +48,7 @@ from thruster_fdd.core.discrepancy.report import (
     write_report,
 )
 from thruster_fdd.core.discrepancy.search import (
+    BASE_GAIN,
     MIN_GAIN,
     SECOND_STAGE,
     WIDE_RANGE,
@@ -58,6 +59,7 @@ from thruster_fdd.core.discrepancy.search import (
     base_changes,
     run_workflow,
     start_config,
+    try_base_change,
     try_candidate,
 )
 from thruster_fdd.core.sim.config import Measurement, dump_config, load_config, set_effect
@@ -360,6 +362,22 @@ def test_second_esc_stage_starts_from_a_grid_and_is_accepted_like_an_effect() ->
     assert change.apply(t100, data).structure.esc_tau2_s == pytest.approx(0.12 * 0.61)
 
 
+def test_the_other_braking_law_is_accepted_like_an_effect() -> None:
+    """A switch of the model's own form with no parameter, held to an effect's ``MIN_GAIN``
+    (t200 mismatch null trace 914, a coasting thruster: coasting removes 47 % of the calibrated
+    start's excess, under ``BASE_GAIN``, and a deadband at 30 % was named instead)."""
+    case = make_mismatch_case((), 914, preset="t200")
+    assert "no_regen" in case.switches
+    data = prepare_measured(case.trace, case.start)
+    start = calibrate(case.start, data)
+    [change] = [c for c in base_changes(start, case.start, {}) if c.regen is not None]
+    assert change.regen is False
+    assert change.min_gain == MIN_GAIN
+    cand = try_base_change(change, start, data, case.start, case.start)
+    assert cand.accepted
+    assert MIN_GAIN < cand.gain < BASE_GAIN
+
+
 def test_a_candidate_whose_short_refit_is_unfinished_is_judged_after_a_full_one() -> None:
     """t100 mismatch tuning seed 9 (second-order ESC, drive saturation, winding loss; a
     0.45 s dead time and a current limit hidden): the dead time's 6-iteration re-fit carries
@@ -531,6 +549,21 @@ def test_a_bic_barely_lower_is_not_evidence() -> None:
     case = make_case((), 717, duration_s=60.0, signal="multilevel")
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert result.added == ()
+    assert result.verdict == "nothing_missing"
+
+
+def test_no_round_begins_at_the_noise_level() -> None:
+    """Exact-base null trace 650 (lowspeed, nothing missing): the calibrated start scores
+    1.02 on the held-out blocks and the round's control re-fit 0.99. With no excess left, every
+    candidate's gain against the floored excess was ~1e10 (t200 mismatch 601: a deadband named
+    so); the search stops there instead of judging candidates."""
+    case = make_case((), 650, duration_s=60.0, signal="lowspeed")
+    lines: list[str] = []
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False, log=lines.append)
+    assert result.start.gap.score > 1.0
+    assert result.rounds == ()
+    assert result.final.gap.score <= 1.0
+    assert any("at the noise level" in line for line in lines)
     assert result.verdict == "nothing_missing"
 
 
