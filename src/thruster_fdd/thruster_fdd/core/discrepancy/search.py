@@ -418,6 +418,12 @@ def try_candidate(
     )
 
 
+def _above_noise(fit: Fit) -> bool:
+    """Whether ``fit``'s held-out score leaves an excess over the noise level (score 1) for a
+    search round to explain."""
+    return fit.gap.score > 1.0 + 1e-9
+
+
 def _excess_gain(before: float, after: float) -> float:
     """Fraction of ``before``'s excess over the noise level (held-out score 1) that a model
     scoring ``after`` removes (the excess floored at 1e-12)."""
@@ -882,7 +888,7 @@ def search(
     changed: list[str] = []
     retracted: set[str] = set()
     rounds: list[Round] = []
-    while len(added) < MAX_ROUNDS and current.gap.score > 1.0 + 1e-9:
+    while len(added) < MAX_ROUNDS and _above_noise(current):
         names = [n for n in EFFECTS if current.config.effect(n) is None and n not in retracted]
         changes = base_changes(current, config, ranges)
         if not names and not changes:
@@ -901,7 +907,7 @@ def search(
             )
             if control.bic < current.bic:
                 current = replace(control, n_sims=control.n_sims + current.n_sims)
-        if current.gap.score <= 1.0 + 1e-9:
+        if not _above_noise(current):
             # The control reached the noise level: there is no excess left for a candidate to
             # remove, and a gain against an excess of ~0 is ~1e10 for any candidate (t200
             # mismatch 601: a deadband named at held-out 0.92 after a control at 0.97).
