@@ -518,8 +518,6 @@ class BaseChange:
         Whether it removes the start's ESC drive saturation (``esc_v_sat_v`` to inf).
     drive_losses : tuple of str
         The ``fit.DRIVE_LOSSES`` terms it frees (by their keys in ``ranges``).
-    min_gain : float
-        Fraction of the held-out excess it must remove to be accepted (``try_base_change``).
     widened : bool
         Whether it widens the bounds of base parameters found on them (``base_changes``).
     """
@@ -530,8 +528,14 @@ class BaseChange:
     second_stage: bool = False
     no_drive_saturation: bool = False
     drive_losses: tuple[str, ...] = ()
-    min_gain: float = BASE_GAIN
     widened: bool = False
+
+    @property
+    def min_gain(self) -> float:
+        """Fraction of the held-out excess it must remove to be accepted
+        (``try_base_change``): ``BASE_GAIN`` for a widened bound, an effect's ``MIN_GAIN`` for
+        the rest, terms or switches of the model's own form."""
+        return BASE_GAIN if self.widened else MIN_GAIN
 
     def starts(self, config: SimConfig) -> list[SimConfig]:
         """``config`` with the change (its bounds aside), once per starting value of what it
@@ -592,30 +596,21 @@ def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -
         and config.structure.esc_tau2_s == 0.0
         and structure.esc_tau2_s == 0.0
     ):
-        out.append(
-            BaseChange("base: second ESC stage", dict(ranges), second_stage=True, min_gain=MIN_GAIN)
-        )
+        out.append(BaseChange("base: second ESC stage", dict(ranges), second_stage=True))
     if structure.regen == config.structure.regen:
         regen = not config.structure.regen
         label = "base: regenerative braking" if regen else "base: coasting, no regeneration"
         # A switch of the model's own form with no parameter: accepted like an effect (t200
         # mismatch null trace 919, a coasting thruster: coasting removed 50 % of the excess,
         # under BASE_GAIN, and a dead time was named in the same round at 17 %).
-        out.append(BaseChange(label, dict(ranges), regen=regen, min_gain=MIN_GAIN))
+        out.append(BaseChange(label, dict(ranges), regen=regen))
     if math.isfinite(config.params.esc_v_sat_v) and math.isfinite(
         current.config.params.esc_v_sat_v
     ):
         # Removing a term of the model's own form: accepted like an effect (t200 mismatch null
         # traces whose thruster lacks the drive saturation: removing it gained 0.43-0.48 after a
         # deadband had stood in for it, and the deadband was named).
-        out.append(
-            BaseChange(
-                "base: no drive saturation",
-                dict(ranges),
-                no_drive_saturation=True,
-                min_gain=MIN_GAIN,
-            )
-        )
+        out.append(BaseChange("base: no drive saturation", dict(ranges), no_drive_saturation=True))
     absent = lacking_drive_losses(config)
     winding = "params.r_speed_ohm_s"
     if winding not in ranges and winding not in absent:
@@ -625,9 +620,7 @@ def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -
         # held-out 5.4; re-fitted, 1.00 and the deadband fits to nothing).
         out.append(
             BaseChange(
-                f"base: r_speed_ohm_s within x{WIDE_RANGE:g}",
-                {**ranges, winding: WIDE_RANGE},
-                min_gain=MIN_GAIN,
+                f"base: r_speed_ohm_s within x{WIDE_RANGE:g}", {**ranges, winding: WIDE_RANGE}
             )
         )
     lacking = tuple(k for k in absent if k not in ranges)
@@ -635,11 +628,7 @@ def base_changes(current: Fit, config: SimConfig, ranges: Mapping[str, float]) -
         names = ", ".join(k.split(".")[1] for k in lacking)
         free = {**ranges, **dict.fromkeys(lacking, math.inf)}
         # Terms of the model's own form: accepted like an effect (``try_base_change``).
-        out.append(
-            BaseChange(
-                f"base: drive losses ({names})", free, drive_losses=lacking, min_gain=MIN_GAIN
-            )
-        )
+        out.append(BaseChange(f"base: drive losses ({names})", free, drive_losses=lacking))
     return out
 
 
