@@ -476,6 +476,22 @@ def test_a_widened_bound_goes_before_an_effect_it_ties_with() -> None:
     assert _choose([deadband, final(wide, 1.10, -26153.0)], [wide])[0].name == "deadband"
 
 
+def test_a_widened_bound_that_is_the_round_best_is_accepted_like_an_effect() -> None:
+    """t200 mismatch null trace 1017 (``k_q`` 2.77 times the start's, nothing hidden): ``k_q``
+    widened removes 39 % of the calibrated start's excess, the round's best candidate but
+    under ``BASE_GAIN``, and a viscous torque (25 %) was named in its place. As the round's
+    best it is held to an effect's ``MIN_GAIN``, and nothing is named."""
+    case = make_mismatch_case((), 1017, preset="t200")
+    assert "base_out_of_bounds" in case.switches
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    [first] = result.rounds[:1]
+    wide = next(c for c in first.candidates if c.name == "base: k_q within x4")
+    assert MIN_GAIN < wide.gain < BASE_GAIN
+    assert first.chosen == wide.name
+    assert result.added == ()
+    assert result.final.config.params.k_q == pytest.approx(case.unit.params.k_q, rel=0.2)
+
+
 def test_a_second_esc_stage_goes_before_a_dead_time_it_ties_with() -> None:
     """t100 mismatch null trace 782 (a 0.058 s second ESC stage, nothing hidden): a 0.045 s
     dead time fits as well as the stage (held-out 1.00 both) with a lower BIC; taken first it

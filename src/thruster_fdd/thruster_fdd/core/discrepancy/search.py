@@ -113,8 +113,9 @@ stage behind a 0.6 s lag, t100 tuning seed 11: held-out score 5.55 against the d
 
 BASE_GAIN = 0.5
 """Fraction of the held-out excess error a widened bound must remove to be accepted
-(``try_base_change``); the other base changes, terms or switches of the model's own form, are
-held to an effect's ``MIN_GAIN``."""
+(``try_base_change``) unless it is the round's best candidate (``_best_widening``); the other
+base changes, terms or switches of the model's own form, are held to an effect's
+``MIN_GAIN``."""
 
 
 @dataclass(frozen=True)
@@ -662,6 +663,23 @@ def try_base_change(
     return Candidate(change.label, fit, delta_bic, gain, accepted, gain)
 
 
+def _best_widening(results: list[Candidate], widen: BaseChange | None) -> list[Candidate]:
+    """``results`` with the widened bound ``widen`` accepted by an effect's rules when its
+    held-out score is the round's best: ``BASE_GAIN`` holds a widening back where it removes
+    only part of the excess while another candidate removes more (on the T200 bench trace
+    ``r_ohm`` widened removes 23 % in the round where the start's winding loss re-fitted removes
+    62 % and the deadband 45 %, and nothing once they are taken), not where it is the best
+    explanation the round has (t200 mismatch null trace 1017, ``k_q`` 2.77 times the start's:
+    widened, 39 %; a viscous torque was named in its place at 25 %)."""
+    if widen is None or not results:
+        return results
+    top = min(results, key=lambda c: c.fit.gap.score)
+    if top.name != widen.label or top.accepted:
+        return results
+    passes = top.delta_bic < -BIC_EVIDENCE and top.gain >= MIN_GAIN
+    return [replace(c, accepted=passes) if c is top else c for c in results]
+
+
 T = TypeVar("T")
 
 
@@ -903,9 +921,11 @@ def search(
             say(f"control re-fit: held-out score {current.gap.score:.2f}, at the noise level")
             break
         jobs = [(w, current, data, named, config, ranges) for w in [*names, *changes]]
-        results = _run_jobs(jobs, workers, progress, f"candidates (round {len(rounds) + 1})")
-        accepted = sorted((c for c in results if c.accepted), key=lambda c: c.fit.gap.score)
         widen = next((ch for ch in changes if ch.widened), None)
+        results = _best_widening(
+            _run_jobs(jobs, workers, progress, f"candidates (round {len(rounds) + 1})"), widen
+        )
+        accepted = sorted((c for c in results if c.accepted), key=lambda c: c.fit.gap.score)
         if not accepted and widen is not None and names:
             # Nothing passes on its own, and a base parameter sits on its bound: an effect may
             # show only together with the wider bound, and the bound be worth widening only with
