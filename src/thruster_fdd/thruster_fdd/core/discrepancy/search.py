@@ -534,8 +534,9 @@ class BaseChange:
     @property
     def min_gain(self) -> float:
         """Fraction of the held-out excess it must remove to be accepted
-        (``try_base_change``): ``BASE_GAIN`` for a widened bound, an effect's ``MIN_GAIN`` for
-        the rest, terms or switches of the model's own form."""
+        (``try_base_change``): ``BASE_GAIN`` for a widened bound (``MIN_GAIN`` when it is the
+        round's best candidate, ``_best_widening``), an effect's ``MIN_GAIN`` for the rest,
+        terms or switches of the model's own form."""
         return BASE_GAIN if self.widened else MIN_GAIN
 
     def starts(self, config: SimConfig) -> list[SimConfig]:
@@ -642,11 +643,12 @@ def try_base_change(
     gain of at least the change's ``min_gain``: ``BASE_GAIN`` (stricter than an effect's
     ``MIN_GAIN``: a parameter that leaves its range to explain only part of the gap is more
     likely making up for something else; on the T200 bench trace ``r_ohm`` would go to a
-    quarter of the preset's, remove 27 % of the excess and leave the deadband 21 % small);
-    the drive losses, terms of the model's own form, by an effect's rules (``MIN_GAIN``: held
-    to ``BASE_GAIN``, a drive loss removing 49 % lost to a viscous friction standing in for
-    it with 42 %), and so are a second ESC stage, the removal of the start's drive saturation,
-    the re-fit of its winding loss and the other braking law."""
+    quarter of the preset's, remove 27 % of the excess and leave the deadband 21 % small;
+    the search lowers it to ``MIN_GAIN`` for a widening that is the round's best candidate,
+    ``_best_widening``); the drive losses, terms of the model's own form, by an effect's
+    rules (``MIN_GAIN``: held to ``BASE_GAIN``, a drive loss removing 49 % lost to a viscous
+    friction standing in for it with 42 %), and so are a second ESC stage, the removal of the
+    start's drive saturation, the re-fit of its winding loss and the other braking law."""
     # Full calibrations (FULL_ITER, not CANDIDATE_ITER): a base change re-shapes the whole
     # model, and from a model distorted by a parameter on its bound 6 iterations fall short
     # (an out-of-range k_q and a hidden dead time: 6 remove 43 % of the excess, 12 most of it).
