@@ -408,7 +408,7 @@ def try_candidate(
         more = calibrate(fit.config, data, anchor=anchor, ranges=ranges)
         delta_bic, gain, own_gain = _judge(name, more, base, data)
         fit = replace(more, n_sims=more.n_sims + fit.n_sims + 3)
-    accepted = delta_bic < -BIC_EVIDENCE and gain >= MIN_GAIN and own_gain >= MIN_GAIN
+    accepted = _passes(delta_bic, gain, MIN_GAIN) and own_gain >= MIN_GAIN
     return Candidate(
         name=name,
         fit=fit,
@@ -423,6 +423,13 @@ def _above_noise(fit: Fit) -> bool:
     """Whether ``fit``'s held-out score leaves an excess over the noise level (score 1) for a
     search round to explain."""
     return fit.gap.score > 1.0 + 1e-9
+
+
+def _passes(delta_bic: float, gain: float, min_gain: float) -> bool:
+    """The acceptance rule of a candidate: a BIC lower by ``BIC_EVIDENCE`` on the fit samples
+    and a held-out gain of at least ``min_gain`` of the excess (an effect's own gain is
+    checked beside it, ``try_candidate``)."""
+    return delta_bic < -BIC_EVIDENCE and gain >= min_gain
 
 
 def _excess_gain(before: float, after: float) -> float:
@@ -661,7 +668,7 @@ def try_base_change(
     fit = replace(fit, n_sims=sum(f.n_sims for f in fits) + scored)
     delta_bic = fit.bic - base.bic
     gain = _excess_gain(base.gap.score, fit.gap.score)
-    accepted = delta_bic < -BIC_EVIDENCE and gain >= change.min_gain
+    accepted = _passes(delta_bic, gain, change.min_gain)
     return Candidate(change.label, fit, delta_bic, gain, accepted, gain)
 
 
@@ -673,12 +680,12 @@ def _best_widening(results: list[Candidate], widen: BaseChange | None) -> list[C
     62 % and the deadband 45 %, and nothing once they are taken), not where it is the best
     explanation the round has (t200 mismatch null trace 1017, ``k_q`` 2.77 times the start's:
     widened, 39 %; a viscous torque was named in its place at 25 %)."""
-    if widen is None or not results:
+    if widen is None:
         return results
     top = min(results, key=lambda c: c.fit.gap.score)
     if top.name != widen.label or top.accepted:
         return results
-    passes = top.delta_bic < -BIC_EVIDENCE and top.gain >= MIN_GAIN
+    passes = _passes(top.delta_bic, top.gain, MIN_GAIN)
     return [replace(c, accepted=passes) if c is top else c for c in results]
 
 
