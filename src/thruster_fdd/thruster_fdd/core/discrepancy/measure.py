@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.ndimage import binary_dilation, median_filter
+from scipy.ndimage import median_filter
 
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import Measurement, SimConfig
@@ -136,24 +136,106 @@ def _noise_sigma(x: np.ndarray, floor: float) -> float:
 
 
 BEND_SAMPLES = 2
-"""Samples on either side of a command bend that despiking leaves alone."""
+"""Samples after a command bend in which a deviation the way the command moved is kept."""
 
 
-def _despike(x: np.ndarray, sigma: float, command: np.ndarray) -> np.ndarray:
-    """Replace isolated spikes (more than 8 sigma off the 5-sample median) by that median.
+@dataclass(frozen=True)
+class Follows:
+    """How a channel follows the command, for despiking.
 
-    Not within ``BEND_SAMPLES`` of where the command (shape (n,)) bends (second difference
-    over 0.02): a one-sample response to a one-sample command, as in a bench log with one rest
-    row at neutral between two steps, or the one-sample current peak of a fast thruster after
-    a step, is the thruster's, not a telemetry glitch. Ramps and holds are straight.
+    Attributes
+    ----------
+    sign : float
+        +1 if the channel moves with the command, -1 against it.
+    magnitude : bool
+        Whether it follows the command's magnitude rather than the signed command.
+    peaks : bool
+        Whether it can peak for a sample in a transient (after a step, when the rotor brakes),
+        not only at a one-sample command pulse.
     """
-    med = median_filter(x, size=5, mode="nearest")
+
+    sign: float
+    magnitude: bool
+    peaks: bool
+
+
+FOLLOWS: dict[str, Follows] = {
+    "rpm": Follows(sign=1.0, magnitude=False, peaks=False),
+    "current": Follows(sign=1.0, magnitude=True, peaks=True),
+    "voltage": Follows(sign=-1.0, magnitude=True, peaks=True),
+}
+"""The speed moves with the signed command and, through the rotor's inertia, is monotone
+after a step and through a reversal; the bus current moves with the command's magnitude and
+peaks for a sample after a step on a fast thruster (t200: 0.1 s ESC lag, 0.1 ohm) or dips
+when the rotor brakes; the bus voltage sags against it."""
+
+
+def _command_moves(command: np.ndarray, follows: Follows) -> np.ndarray:
+    """Way a channel may move at each command bend, shape (n,): +1 or -1, 0 where it may not
+    peak, 2 either way (a reversal: the magnitude says nothing of the braking in between).
+
+    A bend is a second difference over 0.02. A one-sample pulse moves the way it deviates from
+    its neighbours' median, a step the way the command changes across the sample.
+    """
     padded = np.pad(command, 1, mode="edge")
     bend = np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:]) > 0.02
-    # Also the samples just after: a fast thruster's current peaks for one sample a step or
-    # two after the command jumps (t200: 0.1 s ESC lag, 0.1 ohm), and that peak is real.
-    bend = binary_dilation(bend, iterations=BEND_SAMPLES)
-    spikes = ~bend & (np.abs(x - med) > 8.0 * sigma)
+    u = follows.sign * (np.abs(command) if follows.magnitude else command)
+    pulse = u - median_filter(u, size=3, mode="nearest")
+    padded_u = np.pad(u, 1, mode="edge")
+    step = padded_u[2:] - padded_u[:-2] if follows.peaks else np.zeros_like(u)
+    move = np.sign(np.where(pulse != 0.0, pulse, step))
+    if follows.magnitude:
+        move = np.where(padded[:-2] * padded[2:] < 0.0, 2.0, move)
+    return np.where(bend, move, 0.0)
+
+
+SHARP = 0.1
+"""Share of a channel's full scale by which it must bend within a sample to count as moving
+sharply (``_sharp``): above a coarse sensor's steps (up to 100 rpm, 2.5 % of a t100's
+speed) and a reporting floor's jump, below a braking rotor's (t200: 1000-3000 rpm)."""
+
+
+def _sharp(x: np.ndarray, sigma: float) -> np.ndarray:
+    """Where ``x`` (shape (n,)) moves sharply, at the sample or one beside it: it bends by
+    more than ``SHARP`` of its full scale and 8 noise std of a second difference (``sigma``
+    times sqrt 6) with no spike (8 sigma off the 5-sample median) at or beside the sample, so
+    the move lasts: a transient, not noise or a glitch."""
+    limit = max(SHARP * float(np.max(np.abs(x))), 8.0 * math.sqrt(6.0) * sigma)
+    padded = np.pad(x, 1, mode="edge")
+    bend = np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:]) > limit
+    spike = np.abs(x - median_filter(x, size=5, mode="nearest")) > 8.0 * sigma
+    moving = bend & ~_beside(spike)
+    return _beside(moving)
+
+
+def _beside(mask: np.ndarray) -> np.ndarray:
+    """``mask`` (shape (n,)) widened by one sample on each side."""
+    padded = np.pad(mask, 1)
+    return padded[:-2] | padded[1:-1] | padded[2:]
+
+
+def _despike(
+    x: np.ndarray, sigma: float, command: np.ndarray, follows: Follows, transient: np.ndarray
+) -> np.ndarray:
+    """Replace isolated spikes (more than 8 sigma off the 5-sample median) by that median.
+
+    Kept is a deviation the way the command (shape (n,)) moved at a bend up to
+    ``BEND_SAMPLES`` samples before (``_command_moves``): a one-sample response to a
+    one-sample command, as in a bench log with one rest row at neutral between two steps, or
+    the current peak of a fast thruster a sample or two after a step. And, in a channel that
+    ``peaks``, one where another channel moves sharply too (``transient``, shape (n,)): a
+    glitch hits one channel, while the current's dip when a reversing rotor brakes shows in
+    the speed as well, however long after the command a dead time puts it (the speed itself is
+    monotone there). Ramps and holds are straight.
+    """
+    med = median_filter(x, size=5, mode="nearest")
+    dev = x - med
+    move = _command_moves(command, follows)
+    kept = transient & follows.peaks
+    for lag in range(BEND_SAMPLES + 1):
+        m = np.concatenate([np.zeros(lag), move[: len(x) - lag]])
+        kept |= (m == 2.0) | (m * dev > 0.0)
+    spikes = ~kept & (np.abs(dev) > 8.0 * sigma)
     return np.where(spikes, med, x)
 
 
@@ -210,7 +292,17 @@ def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
         "voltage": 1e-3 * float(np.median(cols["voltage"])),
     }
     sigma = {c: _noise_sigma(cols[c], floors[c]) for c in CHANNELS}
-    clean = {c: _despike(cols[c], sigma[c], cols["command"]) for c in CHANNELS}
+    sharp = {c: _sharp(cols[c], sigma[c]) for c in CHANNELS}
+    clean = {
+        c: _despike(
+            cols[c],
+            sigma[c],
+            cols["command"],
+            FOLLOWS[c],
+            np.any([sharp[o] for o in CHANNELS if o != c], axis=0),
+        )
+        for c in CHANNELS
+    }
     held = _held(n, HELD_BLOCKS)
     dt = float(np.median(np.diff(cols["t"])))
     rpm_floor, floor_zeroes_current = reporting_floor(cols["rpm"], cols["current"])
