@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import binary_dilation, median_filter
 
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.sim.config import Measurement, SimConfig
@@ -178,7 +178,7 @@ def _command_moves(command: np.ndarray, follows: Follows) -> np.ndarray:
     its neighbours' median, a step the way the command changes across the sample.
     """
     padded = np.pad(command, 1, mode="edge")
-    bend = np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:]) > 0.02
+    bend = _bends(command) > 0.02
     u = follows.sign * (np.abs(command) if follows.magnitude else command)
     pulse = u - median_filter(u, size=3, mode="nearest")
     padded_u = np.pad(u, 1, mode="edge")
@@ -201,17 +201,14 @@ def _sharp(x: np.ndarray, sigma: float) -> np.ndarray:
     times sqrt 6) with no spike (8 sigma off the 5-sample median) at or beside the sample, so
     the move lasts: a transient, not noise or a glitch."""
     limit = max(SHARP * float(np.max(np.abs(x))), 8.0 * math.sqrt(6.0) * sigma)
-    padded = np.pad(x, 1, mode="edge")
-    bend = np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:]) > limit
     spike = np.abs(x - median_filter(x, size=5, mode="nearest")) > 8.0 * sigma
-    moving = bend & ~_beside(spike)
-    return _beside(moving)
+    return binary_dilation((_bends(x) > limit) & ~binary_dilation(spike))
 
 
-def _beside(mask: np.ndarray) -> np.ndarray:
-    """``mask`` (shape (n,)) widened by one sample on each side."""
-    padded = np.pad(mask, 1)
-    return padded[:-2] | padded[1:-1] | padded[2:]
+def _bends(x: np.ndarray) -> np.ndarray:
+    """Size of the second difference at each sample of ``x`` (shape (n,), ends repeated)."""
+    padded = np.pad(x, 1, mode="edge")
+    return np.abs(padded[:-2] - 2.0 * padded[1:-1] + padded[2:])
 
 
 def _despike(
