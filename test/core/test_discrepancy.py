@@ -635,6 +635,24 @@ def test_prepare_splits_and_estimates_noise() -> None:
     assert 0.03 <= data.sigma["current"] <= 0.08
 
 
+def test_noise_level_counts_a_coarse_speed_grid() -> None:
+    """A speed sensor with 15 rpm noise that reports on an 86 rpm grid (the mismatch
+    benchmark's coarse sensor) holds a steady speed on one level, so the second differences
+    barely move; against the true speed its error is still sqrt(15**2 + 86**2 / 12) = 29 rpm,
+    and the noise level says so. (The second differences alone gave 6 rpm: on t200 null trace
+    1177 the simulated thruster itself then scored 7.8 held-out.)"""
+    t200 = load_config("t200")
+    config = replace(t200, measurement=replace(t200.measurement, rpm_step=86.0, rpm_floor=500.0))
+    t, u = make_signal("multilevel", 120.0, 10.0, seed=0)
+    trace = simulate(config, t, u, seed=0)
+    clean = simulate(replace(config, measurement=Measurement()), t, u, seed=0)
+    error = (trace.rpm - clean.rpm)[trace.rpm != 0.0]
+    error = float(np.sqrt(np.mean(error[np.abs(error) < 200.0] ** 2)))
+    assert 25.0 <= error <= 33.0
+    sigma = prepare_measured(trace, config).sigma["rpm"]
+    assert abs(sigma / error - 1.0) <= 0.25
+
+
 def test_prepare_despikes_glitches_not_responses() -> None:
     """A telemetry spike on a hold or a ramp is replaced; a one-sample rest at neutral between
     two steps (the T200 bench log's layout) is kept: the command itself bends there."""

@@ -121,18 +121,36 @@ class Gap:
         }
 
 
-def _noise_sigma(x: np.ndarray, floor: float) -> float:
-    """Noise std from the MAD of second differences (robust to steps), at least ``floor``.
+def _grid_step(x: np.ndarray) -> float:
+    """Quantisation step of a channel read from its values, in its unit; 0 if it has none.
 
-    Stretches that are exactly 0 (under a reporting floor) are left out; averaged, noise-free
-    data (second differences mostly exactly 0) gets the floor.
+    The 10th percentile of the gaps between its distinct non-zero values: the grid step of a
+    quantised sensor even where a few values lie off the grid (continuous data give a step
+    near 0).
+    """
+    levels = np.unique(x[x != 0.0])
+    if len(levels) < 3:
+        return 0.0
+    return float(np.percentile(np.diff(levels), 10))
+
+
+def _noise_sigma(x: np.ndarray, floor: float) -> float:
+    """Noise std of a channel, quantisation included, at least ``floor``.
+
+    ``sqrt(s**2 + q**2 / 12)``: ``s`` from the MAD of second differences (robust to steps),
+    ``q`` the grid step (``_grid_step``). A grid coarse against the noise holds a steady
+    signal on one level, so its second differences are mostly exactly 0 and ``s`` misses the
+    rounding error, which against the true signal is uniform over a step (variance
+    ``q**2 / 12``); on a fine grid the term is negligible. Stretches that are exactly 0
+    (under a reporting floor) are left out; averaged, noise-free data (second differences
+    mostly exactly 0) gets the floor.
     """
     d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
     d2 = d2[(x[2:] != 0.0) | (x[1:-1] != 0.0) | (x[:-2] != 0.0)]
     if len(d2) < 10:
         return floor
-    mad = float(np.median(np.abs(d2 - np.median(d2))))
-    return max(1.4826 * mad / math.sqrt(6.0), floor)
+    s = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    return max(math.sqrt(s**2 + _grid_step(x) ** 2 / 12.0), floor)
 
 
 BEND_SAMPLES = 2
