@@ -640,7 +640,7 @@ def test_noise_level_counts_a_coarse_speed_grid() -> None:
     benchmark's coarse sensor) holds a steady speed on one level, so the second differences
     barely move; against the true speed its error is still sqrt(15**2 + 86**2 / 12) = 29 rpm,
     and the noise level says so. (The second differences alone gave 6 rpm: on t200 null trace
-    1177 the simulated thruster itself then scored 7.8 held-out.)"""
+    1177 the simulated thruster itself then scored 7.8 held-out.) Set-points are not a grid."""
     t200 = load_config("t200")
     config = replace(t200, measurement=replace(t200.measurement, rpm_step=86.0, rpm_floor=500.0))
     t, u = make_signal("multilevel", 120.0, 10.0, seed=0)
@@ -651,6 +651,11 @@ def test_noise_level_counts_a_coarse_speed_grid() -> None:
     assert 25.0 <= error <= 33.0
     sigma = prepare_measured(trace, config).sigma["rpm"]
     assert abs(sigma / error - 1.0) <= 0.25
+    # A supply stepped through six set-points 2 V apart (the T200 bench trace) is exact on
+    # its levels: no grid, its noise stays at the floor of noise-free data (1e-3 of its level).
+    n = len(trace.t)
+    supply = 10.0 + 2.0 * np.floor(6.0 * np.arange(n) / n)
+    assert prepare_measured(replace(trace, voltage=supply), config).sigma["voltage"] < 0.05
 
 
 def test_prepare_despikes_glitches_not_responses() -> None:

@@ -121,15 +121,22 @@ class Gap:
         }
 
 
+MOVING = 0.05
+"""Least share of samples in which a channel's value changes for its grid to be a sensor's."""
+
+
 def _grid_step(x: np.ndarray) -> float:
     """Quantisation step of a channel read from its values, in its unit; 0 if it has none.
 
     The 10th percentile of the gaps between its distinct non-zero values: the grid step of a
     quantised sensor even where a few values lie off the grid (continuous data give a step
-    near 0).
+    near 0). A channel whose value changes in under ``MOVING`` of its samples (outside
+    stretches of 0) holds set-points, exact on their levels (the T200 bench trace's supply,
+    six levels 2 V apart): no grid.
     """
+    live = (x[1:] != 0.0) | (x[:-1] != 0.0)
     levels = np.unique(x[x != 0.0])
-    if len(levels) < 3:
+    if len(levels) < 3 or np.mean((np.diff(x) != 0.0)[live]) < MOVING:
         return 0.0
     return float(np.percentile(np.diff(levels), 10))
 
