@@ -206,6 +206,20 @@ def test_superfluous_effect_is_reported(ci_results, tmp_path) -> None:
     assert f"superfluous: `{name}`" in text
 
 
+def test_what_stood_in_for_a_superfluous_effect_goes_with_it() -> None:
+    """t200 mismatch trace 631 (inertia 2.4 times the start's, a coarse rpm sensor), the
+    start holding a 0.55 s dead time the thruster lacks. The calibration keeps the dead time
+    near 0.5 s and a slew limit is named beside it; the dead time is then found superfluous.
+    Re-fitted without it from the model around it, the base stayed where the dead time had
+    put it (held-out 9.9, the slew limit still taken); from the start as well, the model
+    reaches 1.6 and the slew limit, re-tested, goes."""
+    case = make_mismatch_case((), 631, preset="t200", superfluous=("dead_time",))
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert [t.name for t in result.superfluous if t.superfluous] == ["dead_time"]
+    assert result.added == ()
+    assert result.final.gap.score < 2.0
+
+
 def test_weakly_seen_start_effect_is_not_superfluous(ci_results) -> None:
     """A start effect the unit has but the trace hardly excites (a 0.03 ohm sag on a
     low-current signal) is fitted towards none, but held at the start's value it scores no

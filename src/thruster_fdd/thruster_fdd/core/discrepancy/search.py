@@ -819,6 +819,40 @@ def _cross_validated(fits: Sequence[Fit]) -> float:
     return float(np.median([f.gap.score for f in fits]))
 
 
+def drop_superfluous(
+    current: Fit,
+    names: Collection[str],
+    added: Sequence[str],
+    origin: SimConfig,
+    config: SimConfig,
+    data: Measured,
+    ranges: Mapping[str, float],
+    say: Callable[[str], None],
+) -> tuple[Fit, list[str]]:
+    """The model without the start's effects ``names``, and the named effects (``added``)
+    that no longer earn their place without them.
+
+    Calibrated from the current model and, as a candidate is, from the uncalibrated start
+    (``origin``, with any base change) plus the named effects; the lower BIC is kept: a base
+    fitted around a superfluous 0.55 s dead time did not find its way back without it (t200
+    mismatch trace 631: held-out 9.9 from the current model, 1.6 from the start). The named
+    effects are then re-tested like after a base change (``_retest``): named while the start
+    still held the superfluous effect, one may have stood in for it (631: a slew limit).
+    """
+    named = origin
+    for name in added:
+        named = set_effect(named, current.config.effect(name))
+    current = min(
+        (
+            calibrate(without_effects(c, names), data, anchor=config, ranges=ranges)
+            for c in (current.config, named)
+        ),
+        key=lambda f: f.bic,
+    )
+    say(f"dropped {', '.join(sorted(names))}: held-out score {current.gap.score:.2f}")
+    return _retest(current, added, config, data, ranges, say) if added else (current, [])
+
+
 def _tied(items: Sequence[T], score: Callable[[T], float]) -> list[T]:
     """``items`` whose ``score`` is within ``SAME_CHOICE`` of the best."""
     if not items:
@@ -1045,9 +1079,10 @@ def search(
         )
         say(f"  start's {t.name}: {values}{without}{'  superfluous' if t.superfluous else ''}")
     if dropped:
-        lean = without_effects(current.config, {t.name for t in dropped})
-        current = calibrate(lean, data, anchor=config, ranges=ranges)
-        say(f"dropped {', '.join(t.name for t in dropped)}: held-out score {current.gap.score:.2f}")
+        current, gone = drop_superfluous(
+            current, [t.name for t in dropped], added, origin, config, data, ranges, say
+        )
+        added = [n for n in added if n not in gone]
     if added or dropped:
         verdict = "effects_found"
     elif current.gap.score > STRUCTURED:
