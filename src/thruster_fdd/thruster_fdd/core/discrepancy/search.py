@@ -819,6 +819,15 @@ def _cross_validated(fits: Sequence[Fit]) -> float:
     return float(np.median([f.gap.score for f in fits]))
 
 
+def _start_with(origin: SimConfig, current: Fit, added: Sequence[str]) -> SimConfig:
+    """The uncalibrated start ``origin`` with the named effects ``added`` as ``current`` has
+    them: the second origin a re-fit starts from besides ``current`` itself."""
+    named = origin
+    for name in added:
+        named = set_effect(named, current.config.effect(name))
+    return named
+
+
 def drop_superfluous(
     current: Fit,
     names: Collection[str],
@@ -839,9 +848,7 @@ def drop_superfluous(
     effects are then re-tested like after a base change (``_retest``): named while the start
     still held the superfluous effect, one may have stood in for it (631: a slew limit).
     """
-    named = origin
-    for name in added:
-        named = set_effect(named, current.config.effect(name))
+    named = _start_with(origin, current, added)
     current = min(
         (
             calibrate(without_effects(c, names), data, anchor=config, ranges=ranges)
@@ -943,9 +950,7 @@ def search(
         changes = base_changes(current, config, ranges)
         if not names and not changes:
             break
-        named = origin
-        for name in added:
-            named = set_effect(named, current.config.effect(name))
+        named = _start_with(origin, current, added)
         # Control: the same model re-fitted once more, from the same two origins a candidate
         # starts from (the current model and the uncalibrated start plus the named effects),
         # so that a candidate is credited only with what its effect adds, not with what
