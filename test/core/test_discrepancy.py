@@ -52,9 +52,11 @@ from thruster_fdd.core.discrepancy.search import (
     MIN_GAIN,
     SECOND_STAGE,
     WIDE_RANGE,
+    BaseChange,
     Candidate,
     Result,
     Round,
+    _best_widening,
     _choose,
     base_changes,
     run_workflow,
@@ -492,19 +494,28 @@ def test_a_widened_bound_goes_before_an_effect_it_ties_with() -> None:
 
 
 def test_a_widened_bound_that_is_the_round_best_is_accepted_like_an_effect() -> None:
-    """t200 mismatch null trace 1017 (``k_q`` 2.77 times the start's, nothing hidden): ``k_q``
-    widened removes 39 % of the calibrated start's excess, the round's best candidate but
-    under ``BASE_GAIN``, and a viscous torque (25 %) was named in its place. As the round's
-    best it is held to an effect's ``MIN_GAIN``, and nothing is named."""
-    case = make_mismatch_case((), 1017, preset="t200")
-    assert "base_out_of_bounds" in case.switches
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
-    [first] = result.rounds[:1]
-    wide = next(c for c in first.candidates if c.name == "base: k_q within x4")
-    assert MIN_GAIN < wide.gain < BASE_GAIN
-    assert first.chosen == wide.name
-    assert result.added == ()
-    assert result.final.config.params.k_q == pytest.approx(case.unit.params.k_q, rel=0.2)
+    """t200 mismatch null trace 1017 (``k_q`` 2.77 times the start's, nothing hidden), under
+    the noise level of the fifteenth session: ``k_q`` widened removed 39 % of the calibrated
+    start's excess, the round's best candidate but under ``BASE_GAIN``, and a viscous torque
+    (25 %) was named in its place. As the round's best it is held to an effect's
+    ``MIN_GAIN``. Where another candidate explains more (the T200 bench trace: ``r_ohm``
+    widened 23 %, the start's winding loss re-fitted 62 %) it stays held to ``BASE_GAIN``.
+    (Since the noise level counts the coarse rpm sensor of 1017, the widening removes 77 %
+    there and passes either way; the trace names nothing.)"""
+    config = load_config("t200")
+    widen = BaseChange("base: k_q within x4", {"params.k_q": WIDE_RANGE}, widened=True)
+
+    def candidate(name: str, gain: float, accepted: bool) -> Candidate:
+        fit = Fit(
+            config, (), np.zeros(0), np.zeros(0), 0.0, Gap(0, 0, 1, 1, 0, 7.0 - 6.0 * gain), 0
+        )
+        return Candidate(name, fit, -100.0, gain, accepted, gain)
+
+    best = [candidate(widen.label, 0.39, False), candidate("viscous_friction", 0.25, True)]
+    assert [c.accepted for c in _best_widening(best, widen)] == [True, True]
+    assert _best_widening(best, None) == best
+    second = [candidate(widen.label, 0.23, False), candidate("base: winding loss", 0.62, True)]
+    assert _best_widening(second, widen) == second
 
 
 def test_a_second_esc_stage_goes_before_a_dead_time_it_ties_with() -> None:
