@@ -50,6 +50,7 @@ from thruster_fdd.core.discrepancy.report import (
 from thruster_fdd.core.discrepancy.search import (
     BASE_GAIN,
     MIN_GAIN,
+    RIGHT_SPREAD,
     SECOND_STAGE,
     WIDE_RANGE,
     BaseChange,
@@ -58,6 +59,7 @@ from thruster_fdd.core.discrepancy.search import (
     Round,
     _best_widening,
     _choose,
+    _excess_gain,
     base_changes,
     run_workflow,
     start_config,
@@ -597,8 +599,9 @@ def test_a_bic_barely_lower_is_not_evidence() -> None:
 def test_no_round_begins_at_the_noise_level() -> None:
     """Exact-base null trace 650 (lowspeed, nothing missing): the calibrated start scores
     1.02 on the held-out blocks and the round's control re-fit 0.99. With no excess left, every
-    candidate's gain against the floored excess was ~1e10 (t200 mismatch 601: a deadband named
-    so); the search stops there instead of judging candidates."""
+    candidate's gain against the excess itself was ~1e10 (t200 mismatch 601: a deadband named
+    so, before a gain was counted against ``RIGHT_SPREAD``); the search stops there instead of
+    judging candidates."""
     case = make_case((), 650, duration_s=60.0, signal="lowspeed")
     lines: list[str] = []
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False, log=lines.append)
@@ -607,6 +610,20 @@ def test_no_round_begins_at_the_noise_level() -> None:
     assert result.final.gap.score <= 1.0
     assert any("at the noise level" in line for line in lines)
     assert result.verdict == "nothing_missing"
+
+
+def test_a_gain_at_the_noise_level_is_counted_against_a_right_models_spread() -> None:
+    """t200 mismatch trace 631 (inertia 2.45 times the start's, a hidden deadband; the
+    simulated thruster itself scores 1.18 held-out): after the deadband and the widened
+    inertia a viscous torque took the model from 1.165 to 1.14, 15 % of the excess over 1, and
+    was named. Counted against ``RIGHT_SPREAD`` it is under ``MIN_GAIN``, while an effect that
+    is there and takes a start near the noise level to the truth still passes (exact-base
+    1188, a hidden viscous torque: 1.10 to 1.03), and far above the noise level the gain is
+    the fraction of the excess as before."""
+    assert RIGHT_SPREAD > 0.165
+    assert _excess_gain(1.165, 1.14) < MIN_GAIN
+    assert _excess_gain(1.10, 1.03) >= MIN_GAIN
+    assert _excess_gain(5.0, 3.0) == pytest.approx(0.5)
 
 
 def test_start_config_drop() -> None:
