@@ -64,6 +64,11 @@ on ``ftol``). 12 left fits from a far start (a superfluous dead time, k_q outsid
 at held-out score 7.2 where 19 reached 1.3."""
 
 
+BLOWN_UP = 1e6
+"""Weighted residual (noise standard deviations) that a sample of a simulation which blew up
+counts as, and the most any sample counts as in a calibration."""
+
+
 BASE_RANGE = 2.0
 """Base parameters are fitted within [anchor / BASE_RANGE, anchor * BASE_RANGE] of the user's
 starting configuration (``calibrate``'s ``anchor``), unless ``ranges`` widens them."""
@@ -355,8 +360,10 @@ def calibrate(
         res = weighted_residuals(simulate_model(build(z), data), data)
         out = np.concatenate([res[c][fit_idx] / s for c, s in zip(CHANNELS, scale, strict=True)])
         # A simulation that blows up (a trial step far out: a supply resistance much larger
-        # than the motor's makes the bus voltage oscillate) is a very bad, finite fit.
-        return np.nan_to_num(out, nan=1e6, posinf=1e6, neginf=-1e6)
+        # than the motor's makes the bus voltage oscillate) is a very bad, finite fit. Clipped,
+        # not only where it overflows: residuals of 1e300 made the finite-difference Jacobian
+        # overflow and the SVD of least squares fail (t100 mismatch 697).
+        return np.clip(np.nan_to_num(out, nan=BLOWN_UP), -BLOWN_UP, BLOWN_UP)
 
     # z = 0 (the start) strictly inside the bounds, so the first trust region is sized 1: a
     # start nudged off a bound (z = 1e-9) makes it vanish, the fit then stops at once.
