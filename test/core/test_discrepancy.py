@@ -634,8 +634,8 @@ def test_a_gain_at_the_noise_level_is_counted_against_a_right_models_spread() ->
 
 def test_a_simulation_that_blows_up_is_a_bad_finite_fit() -> None:
     """t100 mismatch 697 (a hidden deadband and voltage sag): in a round's control re-fit a
-    trial step made the simulation blow up to residuals of about 1e300, finite, so they were
-    not clipped; the finite-difference Jacobian overflowed and least squares failed in its
+    trial step made the simulation blow up to residuals huge but finite, so they were not
+    replaced; the finite-difference Jacobian overflowed and least squares failed in its
     SVD ("array must not contain infs or NaNs"). Clipped at ``BLOWN_UP``, the run ends with
     both effects named."""
     case = make_mismatch_case(("deadband", "voltage_sag"), 697)

@@ -361,8 +361,8 @@ def calibrate(
         out = np.concatenate([res[c][fit_idx] / s for c, s in zip(CHANNELS, scale, strict=True)])
         # A simulation that blows up (a trial step far out: a supply resistance much larger
         # than the motor's makes the bus voltage oscillate) is a very bad, finite fit. Clipped,
-        # not only where it overflows: residuals of 1e300 made the finite-difference Jacobian
-        # overflow and the SVD of least squares fail (t100 mismatch 697).
+        # not only where it overflows: residuals huge but finite made the finite-difference
+        # Jacobian overflow and the SVD of least squares fail (t100 mismatch 697).
         return np.clip(np.nan_to_num(out, nan=BLOWN_UP), -BLOWN_UP, BLOWN_UP)
 
     # z = 0 (the start) strictly inside the bounds, so the first trust region is sized 1: a
