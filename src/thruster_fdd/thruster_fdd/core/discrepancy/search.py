@@ -494,10 +494,7 @@ def _recalibrate(
     and the candidate's re-fit; whichever fits better to begin with is calibrated, and the
     candidate's re-fit is kept if that does not improve its BIC. ``config`` is the anchor.
     """
-    reset = origin
-    for name in (*added, chosen.name):
-        reset = set_effect(reset, chosen.fit.config.effect(name))
-    origins = (reset, chosen.fit.config)
+    origins = (_start_with(origin, chosen.fit, (*added, chosen.name)), chosen.fit.config)
     best = min(origins, key=lambda c: _score_config(c, data))
     fit = calibrate(best, data, anchor=config, ranges=ranges)
     if fit.bic > chosen.fit.bic:
