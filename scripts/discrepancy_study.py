@@ -162,6 +162,7 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "wall_s": time.perf_counter() - t0,
         "visibility": _visibility(case, data, seed),
         "rivals": [[rnd.chosen, name] for rnd in result.rounds for name, *_ in rnd.rivals],
+        "replaced": [list(pair) for pair in result.replaced],
     }
 
 

@@ -330,6 +330,10 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         lines.append("the start holds no effect the search did not name")
     lines += ["", "## Base changes", ""]
     lines += [f"- {n}" for n in result.base_changes] or ["none"]
+    lines += [
+        f"- {name} replaced by {rival} (re-chosen after a base change)"
+        for name, rival in result.replaced
+    ]
     lines += ["", "### Base and structural terms", "", *_base_rows(result)]
     lines += [
         "",
@@ -406,6 +410,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
         "reporting_floor_rpm": data.rpm_floor,
         "floor_zeroes_current": data.floor_zeroes_current,
         "base_changes": list(result.base_changes),
+        "replaced": [list(pair) for pair in result.replaced],
         "at_bound": at_bound(result),
         "signatures_before": signatures(sims["before"], data),
         "signatures_after": signatures(sims["after"], data),
