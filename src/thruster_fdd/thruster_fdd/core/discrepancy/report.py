@@ -329,11 +329,11 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
     else:
         lines.append("the start holds no effect the search did not name")
     lines += ["", "## Base changes", ""]
-    lines += [f"- {n}" for n in result.base_changes] or ["none"]
-    lines += [
-        f"- {name} replaced by {rival} (re-chosen after a base change)"
+    replaced = [
+        f"{name} replaced by {rival} (re-chosen after a base change)"
         for name, rival in result.replaced
     ]
+    lines += [f"- {n}" for n in (*result.base_changes, *replaced)] or ["none"]
     lines += ["", "### Base and structural terms", "", *_base_rows(result)]
     lines += [
         "",
