@@ -939,7 +939,7 @@ def _revisit(
     The round chose on the base of its time: t200 mismatch 644 (a second-order ESC with a
     0.06 s second stage, a coasting rotor) named a 0.047 s dead time, cross-validated 3.52,
     over the second stage's 4.14; once coasting was adopted (1.08) the dead time still paid
-    against nothing (3.8 without it), but the stage in its place scored 1.08, cross-validated
+    against nothing (3.8 without it), but the stage in its place scored 1.06, cross-validated
     1.14 against 1.16 (and a lower BIC), and named nothing.
     """
     rest = [n for n in added if n != name]
