@@ -950,8 +950,9 @@ def _revisit(
 ) -> tuple[str, Fit, BaseChange | None] | None:
     """The choice of the round that named effect ``name`` made again after a base change:
     between the current model and, in its place, each accepted candidate it was chosen over
-    (``passed``, effects or base changes still on offer), by the round's rules (accepted against the
-    model without it, then ``_choose``). A rival base change taken since is no longer one.
+    (``passed``, effects or base changes still on offer), by the round's rules (accepted
+    against the model without it, then ``_choose``). A rival base change taken since is no
+    longer one.
     Returns the rival taken (its name, calibration and base change, None for an effect), or
     None if ``name`` stays.
 
