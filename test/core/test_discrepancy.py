@@ -52,6 +52,7 @@ from thruster_fdd.core.discrepancy.search import (
     MIN_GAIN,
     RIGHT_SPREAD,
     SECOND_STAGE,
+    STRUCTURED,
     WIDE_RANGE,
     BaseChange,
     Candidate,
@@ -685,6 +686,19 @@ def test_a_slew_limit_between_coarse_grid_points_is_named() -> None:
     [found] = result.report()["missing_effects"]
     true = case.hidden["slew_rate_limit"]["rate_per_s"]
     assert found["params"]["rate_per_s"] == pytest.approx(true, rel=0.02)
+
+
+def test_a_start_effect_a_stuck_calibration_keeps_is_tested_when_the_model_is_off() -> None:
+    """t200 mismatch 664 with a superfluous 0.55 s dead time: the calibration stops at
+    0.52 +- 0.42 s (the 0.1 s lag shrunk to 0.005 s), held-out 1023, and no effect helps. The
+    dead time's spread does not contradict the start, but the model still holds structure:
+    it is re-fitted without, reported superfluous, and the gap closes (under 2)."""
+    case = make_mismatch_case((), 664, preset="t200", superfluous=("dead_time",))
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    report = result.report()
+    assert [s["name"] for s in report["superfluous_effects"]] == ["dead_time"]
+    assert result.added == ()
+    assert result.final.gap.score < STRUCTURED < result.start.gap.score
 
 
 def test_an_effect_a_later_one_explains_is_dropped_by_the_bic() -> None:
