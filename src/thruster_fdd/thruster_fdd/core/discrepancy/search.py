@@ -768,17 +768,17 @@ def test_superfluous(
     config: SimConfig,
     data: Measured,
     ranges: Mapping[str, float],
+    *,
+    stuck: bool,
 ) -> Superfluous:
     """Whether effect ``name`` of the start is one the thruster lacks.
 
     Superfluous when (1) the calibration, fitting the effect freely, moved every parameter more
     than ``CONTRADICTED`` standard deviations from the start's value towards none (the data
     contradict the start's claim, not merely fail to confirm it: a current limit that never
-    binds, a friction torque under the noise, stay), or the model still holds structure
-    (held-out score above ``STRUCTURED``), where a calibration may be stuck with the effect
-    and its spread says nothing (t200 mismatch 664, a superfluous 0.55 s dead time: the
-    calibration stopped at 0.52 +- 0.42 s with the 0.1 s lag shrunk to 0.005 s, held-out
-    1023), (2) the model re-fitted without it is
+    binds, a friction torque under the noise, stay), or ``stuck`` (``search`` asks when the
+    model still holds structure and no effect is contradicted: a calibration may be stuck
+    with the effect, and then its spread says nothing), (2) the model re-fitted without it is
     no worse: a lower BIC and a held-out score no higher than with it (within ``SAME_SCORE``),
     and (3) removing it shrinks the gap against the start's claim: held at the start's values,
     the rest re-fitted, the held-out score is more than ``SAME_CHOICE`` above that without it.
@@ -794,7 +794,7 @@ def test_superfluous(
         and abs(fitted[p] - claimed[p]) > CONTRADICTED * std[p]
         for p in claimed
     )
-    if not contradicted and final.gap.score <= STRUCTURED:
+    if not contradicted and not stuck:
         return Superfluous(
             name, claimed, fitted, std, False, final.gap.score, None, math.nan, False
         )
@@ -1224,10 +1224,22 @@ def search(
                     changed.append(line)
                 current = fit
     tests = tuple(
-        test_superfluous(e.name, current, config, data, ranges)
+        test_superfluous(e.name, current, config, data, ranges, stuck=False)
         for e in config.effects
         if e.name not in added
     )
+    if current.gap.score > STRUCTURED and not any(t.superfluous for t in tests):
+        # The model still holds structure and no start effect is contradicted: a calibration
+        # may be stuck with an effect the thruster lacks (t200 mismatch 664, a 0.55 s dead
+        # time: 0.52 +- 0.42 s beside the 0.1 s lag shrunk to 0.005 s, held-out 1023). Each is
+        # tested by removal, and only the one whose removal leaves the lowest held-out score
+        # is taken: tested in a model that far off, another may pass with it (t200 631: the
+        # lag, which that thruster has, beside a superfluous dead time).
+        stuck = [test_superfluous(t.name, current, config, data, ranges, stuck=True) for t in tests]
+        found = [t for t in stuck if t.superfluous]
+        if found:
+            first = min(found, key=lambda t: t.without.gap.score)
+            tests = tuple(first if t.name == first.name else t for t in tests)
     dropped = [t for t in tests if t.superfluous]
     for t in tests:
         values = ", ".join(
