@@ -211,13 +211,14 @@ class Superfluous:
     score_with : float
         Held-out score of the model with it (fitted freely).
     without : Fit or None
-        The model re-fitted without it (only if ``contradicted``).
+        The model re-fitted without it (only if ``contradicted`` or tested as stuck,
+        ``test_superfluous``).
     delta_bic : float
         BIC without it minus BIC with it (negative: it does not pay; nan if not re-fitted).
     superfluous : bool
-        Whether it passed: contradicted, ``delta_bic < 0``, a held-out score without it no
-        higher than with it (within ``SAME_SCORE``) and the start's claim clearly worse than
-        none (``score_claim``).
+        Whether it passed: contradicted (or tested as stuck), ``delta_bic < 0``, a held-out
+        score without it no higher than with it (within ``SAME_SCORE``) and the start's claim
+        clearly worse than none (``score_claim``).
     score_claim : float
         Held-out score with the effect held at the start's values, the rest re-fitted (nan if
         not tried): more than ``SAME_CHOICE`` above the score without it, or removing it
@@ -777,7 +778,7 @@ def test_superfluous(
     than ``CONTRADICTED`` standard deviations from the start's value towards none (the data
     contradict the start's claim, not merely fail to confirm it: a current limit that never
     binds, a friction torque under the noise, stay), or ``stuck`` (``search`` asks when the
-    model still holds structure and no effect is contradicted: a calibration may be stuck
+    model still holds structure and no effect is superfluous: a calibration may be stuck
     with the effect, and then its spread says nothing), (2) the model re-fitted without it is
     no worse: a lower BIC and a held-out score no higher than with it (within ``SAME_SCORE``),
     and (3) removing it shrinks the gap against the start's claim: held at the start's values,
@@ -814,8 +815,9 @@ def test_superfluous(
         score_claim = held.gap.score
         ok = score_claim > without.gap.score * (1.0 + SAME_CHOICE)
     return Superfluous(
-        name, claimed, fitted, std, True, final.gap.score, without, delta_bic, ok, score_claim
-    )
+        name, claimed, fitted, std, contradicted, final.gap.score, without, delta_bic, ok,
+        score_claim,
+    )  # fmt: skip
 
 
 def _retest(
@@ -1229,13 +1231,18 @@ def search(
         if e.name not in added
     )
     if current.gap.score > STRUCTURED and not any(t.superfluous for t in tests):
-        # The model still holds structure and no start effect is contradicted: a calibration
-        # may be stuck with an effect the thruster lacks (t200 mismatch 664, a 0.55 s dead
-        # time: 0.52 +- 0.42 s beside the 0.1 s lag shrunk to 0.005 s, held-out 1023). Each is
-        # tested by removal, and only the one whose removal leaves the lowest held-out score
-        # is taken: tested in a model that far off, another may pass with it (t200 631: the
-        # lag, which that thruster has, beside a superfluous dead time).
-        stuck = [test_superfluous(t.name, current, config, data, ranges, stuck=True) for t in tests]
+        # The model still holds structure and no start effect is superfluous: a calibration
+        # may be stuck with an effect the thruster lacks, its spread no contradiction (t200
+        # mismatch 664, a 0.55 s dead time: 0.52 +- 0.42 s beside the 0.1 s lag shrunk to
+        # 0.005 s, held-out 1023). Each one not contradicted is tested by removal, and only
+        # the one whose removal leaves the lowest held-out score is taken: tested in a model
+        # that far off, another may pass with it (t200 631: the lag, which that thruster has,
+        # beside a superfluous dead time).
+        stuck = [
+            test_superfluous(t.name, current, config, data, ranges, stuck=True)
+            for t in tests
+            if not t.contradicted
+        ]
         found = [t for t in stuck if t.superfluous]
         if found:
             first = min(found, key=lambda t: t.without.gap.score)
