@@ -109,12 +109,9 @@ def _visibility(case: Case, data: Measured, seed: int) -> dict[str, dict[str, fl
     for name in case.hidden:
         bare = replace(without_effects(case.unit, (name,)), spread=0.0, measurement=Measurement())
         sim = simulate(bare, case.clean.t, case.clean.command, seed=seed)
+        diff = {c: getattr(sim, c) - getattr(case.clean, c) for c in CHANNELS}
         out[name] = {
-            part: _noise_units(
-                lambda c, sim=sim, m=mask: (getattr(sim, c) - getattr(case.clean, c))[m],
-                data.sigma,
-                CHANNELS,
-            )
+            part: _noise_units(lambda c, d=diff, m=mask: d[c][m], data.sigma, CHANNELS)
             for part, mask in (("all", slice(None)), ("fit", data.fit), ("held", data.held))
         }
     return out
