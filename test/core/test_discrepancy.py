@@ -675,6 +675,17 @@ def test_a_choice_is_made_again_against_every_accepted_rival() -> None:
     assert result.replaced == (("coulomb_friction", "viscous_friction"),)
 
 
+def test_a_choice_made_again_keeps_the_named_effect_in_a_tie_it_leads() -> None:
+    """t100 mismatch 715 (a hidden Coulomb torque and slew limit): once the drive losses are
+    adopted the torque's choice is made again; a deadband in its place cross-validates 1.33
+    against the torque's 1.30 with a lower BIC. The round broke that tie already: the torque
+    stays."""
+    case = make_mismatch_case(("coulomb_friction", "slew_rate_limit"), 715, preset="t100")
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert set(result.added) == {"coulomb_friction", "slew_rate_limit"}
+    assert result.replaced == ()
+
+
 def test_a_slew_limit_between_coarse_grid_points_is_named() -> None:
     """Exact-base 1244 (a 1.52 per s slew limit behind the 0.61 s lag, 60 s of reversals):
     the fit has a narrow valley around the limit; from a grid of 1.2, 2.5, ... per s the

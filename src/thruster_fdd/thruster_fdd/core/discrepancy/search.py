@@ -967,6 +967,11 @@ def _revisit(
     over the second stage's 4.14; once coasting was adopted (1.08) the dead time still paid
     against nothing (3.8 without it), but the stage in its place scored 1.06, cross-validated
     1.14 against 1.16 (and a lower BIC), and named nothing.
+    A rival must cross-validate at least as well as ``name`` (a widening or second stage
+    excepted, as in ``_choose``): the round already broke the tie by the BIC, and breaking it
+    again on another base flips on noise (t100 mismatch 715, a hidden Coulomb torque and slew
+    limit: once the drive losses were adopted the torque cross-validated 1.30, a deadband in
+    its place 1.33 with a lower BIC, and the deadband was named).
     """
     rest = [n for n in added if n != name]
     lean = calibrate(without_effects(current.config, (name,)), data, anchor=config, ranges=ranges)
@@ -992,7 +997,8 @@ def _revisit(
         return None
     scored, n_folds = _score_finals(finals, data, config, workers, progress)
     first = [ch.label for ch in offered.values() if ch.widened or ch.second_stage]
-    chosen, best = _choose(scored, first)
+    held = scored[0][2]
+    chosen, best = _choose([s for s in scored if s[2] <= held or s[0].name in first], first)
     if chosen is None or best is None:
         return None
     scores = ", ".join(f"{c.name} cross-validated {cv:.2f}" for c, _f, cv in scored)
