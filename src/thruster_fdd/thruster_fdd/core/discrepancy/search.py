@@ -997,7 +997,7 @@ def _revisit(
         return None
     scored, n_folds = _score_finals(finals, data, config, workers, progress)
     first = [ch.label for ch in offered.values() if ch.widened or ch.second_stage]
-    held = scored[0][2]
+    held = scored[0][2]  # the named effect's: ``finals`` begins with it
     chosen, best = _choose([s for s in scored if s[2] <= held or s[0].name in first], first)
     if chosen is None or best is None:
         return None
