@@ -26,7 +26,7 @@ zero only says the model's speed should be under the floor.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
@@ -996,7 +996,7 @@ def _revisit(
     if len(finals) == 1:
         return None
     scored, n_folds = _score_finals(finals, data, config, workers, progress)
-    first = [ch.label for ch in offered.values() if ch.widened or ch.second_stage]
+    first = _first(offered.values())
     held = scored[0][2]  # the named effect's: ``finals`` begins with it
     chosen, best = _choose([s for s in scored if s[2] <= held or s[0].name in first], first)
     if chosen is None or best is None:
@@ -1014,6 +1014,13 @@ def _tied(items: Sequence[T], score: Callable[[T], float]) -> list[T]:
         return []
     top = min(score(item) for item in items)
     return [item for item in items if score(item) <= top * (1.0 + SAME_CHOICE)]
+
+
+def _first(changes: Iterable[BaseChange]) -> list[str]:
+    """Labels of ``changes`` that ``_choose`` takes before an effect in a tie (and that a
+    re-made choice may take without a better score, ``_revisit``): a widened bound or a
+    second ESC stage."""
+    return [ch.label for ch in changes if ch.widened or ch.second_stage]
 
 
 def _choose(
@@ -1169,9 +1176,7 @@ def search(
                 f"  full calibration with {c.name}: held-out score {full.gap.score:.2f}"
                 f"{folded}, BIC {full.bic:.1f}"
             )
-        chosen, best = _choose(
-            scored, [ch.label for ch in changes if ch.widened or ch.second_stage]
-        )
+        chosen, best = _choose(scored, _first(changes))
         rounds.append(
             Round(
                 before=current,
