@@ -225,6 +225,43 @@ def test_what_stood_in_for_a_superfluous_effect_goes_with_it() -> None:
     assert result.final.gap.score < 2.0
 
 
+def test_a_dead_time_standing_in_for_a_second_esc_stage_is_superfluous() -> None:
+    """t100 mismatch 729 (a second-order ESC with a 0.074 s second stage), the start holding a
+    0.55 s dead time the thruster lacks. The calibration fits the dead time to 0.059 s, where
+    it stands in for the stage: removed alone it costs (held-out 1.35 against 0.81, the BIC
+    higher by 12245), and the search never offered the stage while the dead time was there
+    (it gained 0.6 %). Removed with the stage in its place it is superfluous, and the stage is
+    a base change."""
+    case = make_mismatch_case((), 729, preset="t100", superfluous=("dead_time",))
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    [test] = [t for t in result.superfluous if t.superfluous]
+    assert test.name == "dead_time"
+    assert test.change is not None
+    assert test.change.second_stage
+    assert result.added == ()
+    assert result.final.config.effect("dead_time") is None
+    assert result.final.config.structure.esc_tau2_s > 0.0
+    assert any(line.endswith("in place of dead_time)") for line in result.base_changes)
+    assert result.final.gap.score < 1.0
+
+
+def test_what_is_left_of_a_contradicted_effect_must_earn_its_place() -> None:
+    """t100 mismatch 730 (a coarse speed sensor, drive saturation, r_ohm three times the
+    start's), the start holding a 0.0625 deadband the thruster lacks: fitted to 0.012, it
+    still lowers the BIC (by 291) but not the held-out score (0.795 against 0.80 without).
+    The data contradict the start's claim, and what is left would not be named missing, so
+    it is superfluous."""
+    case = make_mismatch_case((), 730, preset="t100", superfluous=("deadband",))
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    [test] = [t for t in result.superfluous if t.superfluous]
+    assert test.name == "deadband"
+    assert test.contradicted
+    assert test.change is None
+    assert test.delta_bic > 0.0  # the old rule's lower BIC does not hold
+    assert result.added == ()
+    assert result.final.config.effect("deadband") is None
+
+
 def test_weakly_seen_start_effect_is_not_superfluous(ci_results) -> None:
     """A start effect the unit has but the trace hardly excites (a 0.03 ohm sag on a
     low-current signal) is fitted towards none, but held at the start's value it scores no

@@ -308,8 +308,10 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
             f"Each effect of the start the search did not name, fitted freely: superfluous when "
             f"the fit moves it more than {CONTRADICTED:g} standard deviations from the start's "
             f"value towards none, the model re-fitted without it is no worse (lower BIC, "
-            f"held-out score no higher), and held at the start's value it scores more than "
-            f"{100 * SAME_CHOICE:g} % worse than without it.",
+            f"held-out score no higher) or what is left of it would not be named missing, "
+            f"and held at the start's value it scores more than "
+            f"{100 * SAME_CHOICE:g} % worse than without it. A dead time is removed also "
+            f"with a second ESC stage in its place (the stage then a base change below).",
             "",
             "| effect | start | fitted (std) | ΔBIC without | held-out score with / without "
             "| superfluous |",
@@ -448,6 +450,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
                 "contradicted": t.contradicted,
                 "delta_bic_without": t.delta_bic,
                 "held_out_score_without": t.without.gap.score if t.without else None,
+                "base_change_without": t.change.label if t.change else None,
                 "superfluous": t.superfluous,
             }
             for t in result.superfluous
