@@ -229,9 +229,8 @@ def test_a_dead_time_standing_in_for_a_second_esc_stage_is_superfluous() -> None
     """t100 mismatch 729 (a second-order ESC with a 0.074 s second stage), the start holding a
     0.55 s dead time the thruster lacks. The calibration fits the dead time to 0.059 s, where
     it stands in for the stage: removed alone it costs (held-out 1.35 against 0.81, the BIC
-    higher by 12245), and the search never offered the stage while the dead time was there
-    (it gained 0.6 %). Removed with the stage in its place it is superfluous, and the stage is
-    a base change."""
+    higher by 12245), and offered beside the dead time the stage gained 0.6 %. Removed with
+    the stage in its place it is superfluous, and the stage is a base change."""
     case = make_mismatch_case((), 729, preset="t100", superfluous=("dead_time",))
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     [test] = [t for t in result.superfluous if t.superfluous]

@@ -216,9 +216,10 @@ class Superfluous:
     delta_bic : float
         BIC without it minus BIC with it (negative: it does not pay; nan if not re-fitted).
     superfluous : bool
-        Whether it passed: contradicted (or tested as stuck), ``delta_bic < 0``, a held-out
-        score without it no higher than with it (within ``SAME_SCORE``) and the start's claim
-        clearly worse than none (``score_claim``).
+        Whether it passed: contradicted (or tested as stuck), ``delta_bic < 0`` and a held-out
+        score without it no higher than with it (within ``SAME_SCORE``) or, when
+        contradicted, not enough to be named missing against the model without it
+        (``_passes``), and the start's claim clearly worse than none (``score_claim``).
     score_claim : float
         Held-out score with the effect held at the start's values, the rest re-fitted (nan if
         not tried): more than ``SAME_CHOICE`` above the score without it, or removing it
@@ -791,12 +792,12 @@ def test_superfluous(
     re-fitted, the held-out score is more than ``SAME_CHOICE`` above that without it.
 
     A contradicted dead time is removed also with a second ESC stage in its place (when the
-    search offers one, ``base_changes``), and the re-fit with the lower BIC is the one without
-    it when the stage passes a base change's rules against the model without both: a short
-    delay is what a second-order ESC looks like to a model with one stage (t200 mismatch 672,
-    a 0.14 s second stage: the start's 0.55 s dead time fitted to 0.059 s, and without it the
-    held-out score 11.1 against 1.8), and the search could not offer the stage while the dead
-    time stood in for it. The stage is then ``Superfluous.change``.
+    search offers one, ``base_changes``); that re-fit is the model without it when the stage
+    passes a base change's rules against the plain removal: a short delay is what a
+    second-order ESC looks like to a model with one stage (t200 mismatch 672, a 0.14 s second
+    stage: the start's 0.55 s dead time fitted to 0.059 s, and without it the held-out score
+    11.1 against 1.8), and offered beside the dead time the stage gains next to nothing. The
+    stage is then ``Superfluous.change``.
     """
     claimed = config.effect(name).params()
     effect = final.config.effect(name)
@@ -815,9 +816,11 @@ def test_superfluous(
         )
     lean = without_effects(final.config, (name,))
     without = calibrate(lean, data, max_iter=CANDIDATE_ITER, anchor=config, ranges=ranges)
-    stage = next((c for c in base_changes(without, config, ranges) if c.second_stage), None)
     change = None
-    if contradicted and name == "dead_time" and stage is not None:
+    stage = None
+    if contradicted and name == "dead_time":
+        stage = next((c for c in base_changes(without, config, ranges) if c.second_stage), None)
+    if stage is not None:
         staged = calibrate(stage.apply(lean, data), data, anchor=config, ranges=stage.ranges)
         gain = _excess_gain(without.gap.score, staged.gap.score)
         if _passes(staged.bic - without.bic, gain, stage.min_gain):
