@@ -110,3 +110,16 @@ def test_frame_stamps_follow_the_bridge_clock_and_increase() -> None:
     assert no_clock == [9_999_990, 9_999_995, 10_000_000]
     same = frame_stamps(10_000_000, [7, 7])
     assert same[0] < same[1]
+
+
+def test_a_stale_period_still_names_the_faults_seen_before_the_silence() -> None:
+    health = assess_link(
+        _window(since_frame_s=0.3, bridge_faults="ADC_FAULT", rejected=1, reject_reason="flag")
+    )
+    assert health.level == STALE
+    assert health.message.startswith("no telemetry for 0.3 s")
+    assert "bridge reports ADC_FAULT" in health.message
+    assert "1 implausible samples refused (flag)" in health.message
+    assert assess_link(_window(frames=0, since_frame_s=0.3)).message == (
+        "no telemetry for 0.3 s (expected 50 Hz)"
+    )

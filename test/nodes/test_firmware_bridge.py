@@ -200,10 +200,11 @@ def test_noise_on_the_host_link_is_flagged_and_not_published(rig: Rig) -> None:
     start = rig.bridge.virtual_time
     rig.bridge.inject(cosim.HostNoise(300, to_bridge=False))
     rig.bridge.inject(cosim.HostNoise(300, to_bridge=True))
-    assert rig.spin_until(lambda: any("noise" in m for _, m in rig.diag_messages(n_diag)), 3.0), (
+    assert rig.spin_until(lambda: any("noise" in m for _, m in rig.diag_messages(n_diag)), 10.0), (
         rig.diag_messages(n_diag)
     )
-    assert any(level == 1 for level, m in rig.diag_messages(n_diag) if "noise" in m)
+    # WARN, or STALE when the noise cost the driver a few frames (the message names both).
+    assert any(level in (1, 3) for level, m in rig.diag_messages(n_diag) if "noise" in m)
     served = {s.reading.voltage_v for s in rig.bridge.served() if s.t_sent is not None}
     assert all(m.voltage_v in served for m in rig.telemetry[n0:])
     assert all(abs(p.width_us - 1500) <= 0.5 for p in rig.pulses(since=start))
@@ -214,7 +215,7 @@ def test_a_corrupted_esc_frame_is_flagged_and_not_published(rig: Rig) -> None:
     known = {s.frame_id for s in rig.bridge.served() if s.fault}
     rig.bridge.inject(cosim.CorruptEscFrame())
     assert rig.spin_until(
-        lambda: any("ADC_FAULT" in m for _, m in rig.diag_messages(n_diag)), 3.0
+        lambda: any("ADC_FAULT" in m for _, m in rig.diag_messages(n_diag)), 10.0
     ), rig.diag_messages(n_diag)
     (bad,) = [s for s in rig.bridge.served() if s.fault and s.frame_id not in known]
     bad_voltage = int.from_bytes(bad.data[6:8], "little") / 10

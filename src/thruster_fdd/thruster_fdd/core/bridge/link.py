@@ -175,9 +175,11 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
     -------
     LinkHealth
         ERROR when the port is closed or the line is stuck with no telemetry; STALE when no
-        telemetry arrives; WARN for CRC errors, truncated frames, noise, lost, duplicated or
-        replayed frames, bridge resets, sequence restarts, stuck bytes between frames, refused
-        samples, bridge faults or the watchdog holding neutral; OK otherwise.
+        telemetry arrives (the message names the period's other problems too, so a fault
+        flagged just before a silence is still said); WARN for CRC errors, truncated frames,
+        noise, lost, duplicated or replayed frames, bridge resets, sequence restarts, stuck
+        bytes between frames, refused samples, bridge faults or the watchdog holding neutral;
+        OK otherwise.
     """
     rate = window.frames / window.period_s if 0 < window.period_s < math.inf else 0.0
     rate = rate if math.isfinite(rate) else 0.0  # a period of 5e-324 s
@@ -212,15 +214,6 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
     ]
     if stuck and window.frames == 0:
         return LinkHealth(ERROR, f"{'; '.join(stuck)}, no telemetry (check wiring)", values)
-    # Without a known rate, silence for a whole diagnostics period is stale.
-    stale_s = stale_after_periods / expected if expected else window.period_s
-    if window.since_frame_s is None or not window.since_frame_s <= stale_s:
-        silent = (
-            "no telemetry yet"
-            if window.since_frame_s is None
-            else (f"no telemetry for {window.since_frame_s:.1f} s")
-        )
-        return LinkHealth(STALE, f"{silent} (expected {expected:g} Hz)", values)
     problems = [
         text
         for count, text in (
@@ -244,7 +237,17 @@ def assess_link(window: LinkWindow, stale_after_periods: float = 5.0) -> LinkHea
         problems.append(f"bridge reports {window.bridge_faults}")
     if window.watchdog_neutral:
         problems.append("no command within the watchdog timeout: holding neutral")
+    seen = f"{'; '.join(problems)} in the last {window.period_s:.1f} s" if problems else ""
+    # Without a known rate, silence for a whole diagnostics period is stale.
+    stale_s = stale_after_periods / expected if expected else window.period_s
+    if window.since_frame_s is None or not window.since_frame_s <= stale_s:
+        silent = (
+            "no telemetry yet"
+            if window.since_frame_s is None
+            else (f"no telemetry for {window.since_frame_s:.1f} s")
+        )
+        message = f"{silent} (expected {expected:g} Hz)" + (f"; {seen}" if seen else "")
+        return LinkHealth(STALE, message, values)
     if problems:
-        summary = "; ".join(problems)
-        return LinkHealth(WARN, f"{summary} in the last {window.period_s:.1f} s", values)
+        return LinkHealth(WARN, seen, values)
     return LinkHealth(OK, f"telemetry {rate:.1f} Hz", values)
