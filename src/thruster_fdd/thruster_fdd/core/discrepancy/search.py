@@ -774,6 +774,7 @@ def test_superfluous(
     config: SimConfig,
     data: Measured,
     ranges: Mapping[str, float],
+    named: SimConfig,
     *,
     stuck: bool,
 ) -> Superfluous:
@@ -797,7 +798,9 @@ def test_superfluous(
     second-order ESC looks like to a model with one stage (t200 mismatch 672, a 0.14 s second
     stage: the start's 0.55 s dead time fitted to 0.059 s, and without it the held-out score
     11.1 against 1.8), and offered beside the dead time the stage gains next to nothing. The
-    stage is then ``Superfluous.change``.
+    stage is then ``Superfluous.change``, fitted like any base change (``try_base_change``)
+    from the model without the dead time and from ``named`` (the uncalibrated start with the
+    search's base changes and named effects) without it.
     """
     claimed = config.effect(name).params()
     effect = final.config.effect(name)
@@ -821,10 +824,9 @@ def test_superfluous(
     if contradicted and name == "dead_time":
         stage = next((c for c in base_changes(without, config, ranges) if c.second_stage), None)
     if stage is not None:
-        staged = calibrate(stage.apply(lean, data), data, anchor=config, ranges=stage.ranges)
-        gain = _excess_gain(without.gap.score, staged.gap.score)
-        if _passes(staged.bic - without.bic, gain, stage.min_gain):
-            without, change = replace(staged, n_sims=staged.n_sims + without.n_sims), stage
+        staged = try_base_change(stage, without, data, config, without_effects(named, (name,)))
+        if staged.accepted:
+            without, change = replace(staged.fit, n_sims=staged.fit.n_sims + without.n_sims), stage
     delta_bic = without.bic - final.bic
     ok = delta_bic < 0.0 and without.gap.score <= final.gap.score * (1.0 + SAME_SCORE)
     if contradicted and not ok:
@@ -1266,8 +1268,9 @@ def search(
                     )
                     changed.append(line)
                 current = fit
+    named = _start_with(origin, current, added)
     tests = tuple(
-        test_superfluous(e.name, current, config, data, ranges, stuck=False)
+        test_superfluous(e.name, current, config, data, ranges, named, stuck=False)
         for e in config.effects
         if e.name not in added
     )
@@ -1280,7 +1283,7 @@ def search(
         # that far off, another may pass with it (t200 631: the lag, which that thruster has,
         # beside a superfluous dead time).
         stuck = [
-            test_superfluous(t.name, current, config, data, ranges, stuck=True)
+            test_superfluous(t.name, current, config, data, ranges, named, stuck=True)
             for t in tests
             if not t.contradicted
         ]
