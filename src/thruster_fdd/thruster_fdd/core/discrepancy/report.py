@@ -307,9 +307,9 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         lines += [
             f"Each effect of the start the search did not name, fitted freely: superfluous when "
             f"the fit moves it more than {CONTRADICTED:g} standard deviations from the start's "
-            f"value towards none, the model re-fitted without it is no worse (lower BIC, "
-            f"held-out score no higher) or what is left of it would not be named missing, "
-            f"and held at the start's value it scores more than "
+            f"value towards none (or all the way to none), the model re-fitted without it is "
+            f"no worse (lower BIC, held-out score no higher) or what is left of it would not "
+            f"be named missing, and held at the start's value it scores more than "
             f"{100 * SAME_CHOICE:g} % worse than without it. A dead time is removed also "
             f"with a second ESC stage in its place (the stage then a base change below).",
             "",
