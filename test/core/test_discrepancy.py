@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from multiprocessing import get_context
@@ -259,6 +260,24 @@ def test_what_is_left_of_a_contradicted_effect_must_earn_its_place() -> None:
     assert test.delta_bic > 0.0  # the old rule's lower BIC does not hold
     assert result.added == ()
     assert result.final.config.effect("deadband") is None
+
+
+def test_a_start_effect_fitted_to_none_is_contradicted_whatever_its_spread() -> None:
+    """t100 mismatch 766 (a coarse speed sensor, coasting, a winding loss), the start holding
+    a 0.55 s dead time the thruster lacks: the calibration fits it to 5e-9 s, where a delay
+    has no slope, so its spread is infinite and was no contradiction. It moved all the way to
+    none: contradicted, removed, superfluous; report.json, strict JSON, gives the unbounded
+    spread as null."""
+    case = make_mismatch_case((), 766, preset="t100", superfluous=("dead_time",))
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    [test] = [t for t in result.superfluous if t.superfluous]
+    assert test.name == "dead_time"
+    assert test.contradicted
+    assert not math.isfinite(test.fitted_std["delay_s"])
+    assert result.added == ()
+    [entry] = result.report()["superfluous_effects"]
+    assert entry["uncertainty"] == {"delay_s": None}
+    json.dumps(result.report(), allow_nan=False)
 
 
 def test_weakly_seen_start_effect_is_not_superfluous(ci_results) -> None:

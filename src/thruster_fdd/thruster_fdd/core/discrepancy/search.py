@@ -287,7 +287,12 @@ class Result:
     replaced: tuple[tuple[str, str], ...] = ()
 
     def report(self) -> dict:
-        """The report.json mapping, exactly the keys of docs/contracts.md."""
+        """The report.json mapping, exactly the keys of docs/contracts.md (strict JSON: a
+        spread the data do not bound, infinite, is None)."""
+
+        def spread(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+
         missing = []
         for name in self.added:
             effect = self.final.config.effect(name)
@@ -296,14 +301,16 @@ class Result:
                 {
                     "name": name,
                     "params": params,
-                    "uncertainty": {p: self.final.uncertainty(f"{name}.{p}") for p in params},
+                    "uncertainty": {
+                        p: spread(self.final.uncertainty(f"{name}.{p}")) for p in params
+                    },
                 }
             )
         superfluous = [
             {
                 "name": sup.name,
                 "params": sup.start_params,
-                "uncertainty": sup.fitted_std,
+                "uncertainty": {p: spread(x) for p, x in sup.fitted_std.items()},
             }
             for sup in self.superfluous
             if sup.superfluous
