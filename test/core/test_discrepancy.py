@@ -229,16 +229,24 @@ def test_what_stood_in_for_a_superfluous_effect_goes_with_it() -> None:
     assert result.final.gap.score < 2.0
 
 
+def _only_superfluous(seed: int, name: str) -> tuple:
+    """The workflow on the t100 mismatch trace ``seed`` whose start holds ``name``, which the
+    thruster lacks; the result and the one superfluity test that passed (it must be
+    ``name``'s)."""
+    case = make_mismatch_case((), seed, preset="t100", superfluous=(name,))
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    [test] = [t for t in result.superfluous if t.superfluous]
+    assert test.name == name
+    return result, test
+
+
 def test_a_dead_time_standing_in_for_a_second_esc_stage_is_superfluous() -> None:
     """t100 mismatch 729 (a second-order ESC with a 0.074 s second stage), the start holding a
     0.55 s dead time the thruster lacks. The calibration fits the dead time to 0.059 s, where
     it stands in for the stage: removed alone it costs (held-out 1.35 against 0.81, the BIC
     higher by 12245), and offered beside the dead time the stage gained 0.6 %. Removed with
     the stage in its place it is superfluous, and the stage is a base change."""
-    case = make_mismatch_case((), 729, preset="t100", superfluous=("dead_time",))
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
-    [test] = [t for t in result.superfluous if t.superfluous]
-    assert test.name == "dead_time"
+    result, test = _only_superfluous(729, "dead_time")
     assert test.change is not None
     assert test.change.second_stage
     assert result.added == ()
@@ -254,10 +262,7 @@ def test_what_is_left_of_a_contradicted_effect_must_earn_its_place() -> None:
     still lowers the BIC (by 291) but not the held-out score (0.795 against 0.80 without).
     The data contradict the start's claim, and what is left would not be named missing, so
     it is superfluous."""
-    case = make_mismatch_case((), 730, preset="t100", superfluous=("deadband",))
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
-    [test] = [t for t in result.superfluous if t.superfluous]
-    assert test.name == "deadband"
+    result, test = _only_superfluous(730, "deadband")
     assert test.contradicted
     assert test.change is None
     assert test.delta_bic > 0.0  # the old rule's lower BIC does not hold
@@ -271,10 +276,7 @@ def test_a_start_effect_fitted_to_none_is_contradicted_whatever_its_spread() -> 
     has no slope, so its spread is infinite and was no contradiction. It moved all the way to
     none: contradicted, removed, superfluous; report.json, strict JSON, gives the unbounded
     spread as null."""
-    case = make_mismatch_case((), 766, preset="t100", superfluous=("dead_time",))
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
-    [test] = [t for t in result.superfluous if t.superfluous]
-    assert test.name == "dead_time"
+    result, test = _only_superfluous(766, "dead_time")
     assert test.contradicted
     assert not math.isfinite(test.fitted_std["delay_s"])
     assert result.added == ()
