@@ -852,8 +852,12 @@ def test_superfluous(
         # The start's claim is wrong; what the calibration kept of the effect must earn its
         # place as an effect named missing would (t100 mismatch 730, no deadband: the start's
         # 0.0625 fitted to 0.012 +- 0.001, lowering the BIC by 291 and the held-out score by
-        # 0.005, a thruster whose coarse speed sensor blurs its slow region).
-        ok = not _passes(-delta_bic, _excess_gain(without.gap.score, final.gap.score), MIN_GAIN)
+        # 0.005, a thruster whose coarse speed sensor blurs its slow region). At the noise
+        # level no round begins, so none is named there (t200 mismatch 738: a 0.013 deadband
+        # held-out 0.92, without it 0.97, standing in for the drive saturation the thruster
+        # lacks: better current at high commands, worse speed at small ones).
+        gain = _excess_gain(without.gap.score, final.gap.score)
+        ok = not (_above_noise(without) and _passes(-delta_bic, gain, MIN_GAIN))
     score_claim = math.nan
     if ok:
         # Removing it must shrink the gap against what the start claims: the effect held at
