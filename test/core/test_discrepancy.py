@@ -229,11 +229,11 @@ def test_what_stood_in_for_a_superfluous_effect_goes_with_it() -> None:
     assert result.final.gap.score < 2.0
 
 
-def _only_superfluous(seed: int, name: str) -> tuple:
-    """The workflow on the t100 mismatch trace ``seed`` whose start holds ``name``, which the
-    thruster lacks; the result and the one superfluity test that passed (it must be
-    ``name``'s)."""
-    case = make_mismatch_case((), seed, preset="t100", superfluous=(name,))
+def _only_superfluous(seed: int, name: str, preset: str = "t100") -> tuple:
+    """The workflow on the mismatch trace ``seed`` of family ``preset`` whose start holds
+    ``name``, which the thruster lacks; the result and the one superfluity test that passed
+    (it must be ``name``'s)."""
+    case = make_mismatch_case((), seed, preset=preset, superfluous=(name,))
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     [test] = [t for t in result.superfluous if t.superfluous]
     assert test.name == name
@@ -283,6 +283,20 @@ def test_a_start_effect_fitted_to_none_is_contradicted_whatever_its_spread() -> 
     [entry] = result.report()["superfluous_effects"]
     assert entry["uncertainty"] == {"delay_s": None}
     json.dumps(result.report(), allow_nan=False)
+
+
+def test_nothing_is_named_at_the_noise_level() -> None:
+    """t200 mismatch 738 (a coarse speed sensor, no drive saturation), the start holding a
+    0.034 deadband the thruster lacks: fitted to 0.013, it gains 15 % of the excess of the
+    model without it (0.97 against 0.92, a BIC lower by 2279), but that model is at the noise
+    level already, where the search begins no round, so it is superfluous (0.86 once
+    dropped)."""
+    result, test = _only_superfluous(738, "deadband", preset="t200")
+    assert test.contradicted
+    assert test.without.gap.score <= 1.0
+    assert test.delta_bic > 0.0
+    assert result.added == ()
+    assert result.final.gap.score < test.score_with
 
 
 def test_weakly_seen_start_effect_is_not_superfluous(ci_results) -> None:
