@@ -219,7 +219,7 @@ class Superfluous:
         Whether it passed: contradicted (or tested as stuck), ``delta_bic < 0`` and a held-out
         score without it no higher than with it (within ``SAME_SCORE``) or, when
         contradicted, not enough to be named missing against the model without it
-        (``_passes``), and the start's claim clearly worse than none (``score_claim``).
+        (``_kept``), and the start's claim clearly worse than none (``score_claim``).
     score_claim : float
         Held-out score with the effect held at the start's values, the rest re-fitted (nan if
         not tried): more than ``SAME_CHOICE`` above the score without it, or removing it
@@ -840,13 +840,14 @@ def test_superfluous(
     lean = without_effects(final.config, (name,))
     without = calibrate(lean, data, max_iter=CANDIDATE_ITER, anchor=config, ranges=ranges)
     change = None
-    stage = None
     if contradicted and name == "dead_time":
         stage = next((c for c in base_changes(without, config, ranges) if c.second_stage), None)
-    if stage is not None:
-        staged = try_base_change(stage, without, data, config, without_effects(named, (name,)))
-        if staged.accepted:
-            without, change = replace(staged.fit, n_sims=staged.fit.n_sims + without.n_sims), stage
+        if stage is not None:
+            lean_start = without_effects(named, (name,))
+            staged = try_base_change(stage, without, data, config, lean_start)
+            if staged.accepted:
+                without = replace(staged.fit, n_sims=staged.fit.n_sims + without.n_sims)
+                change = stage
     # The short re-fit from the model around the effect may stop short: re-fitted in full from
     # two origins, as ``drop_superfluous`` does (t200 mismatch 741: a 0.014 deadband, held-out
     # 0.87; without it 1.02 after the short re-fit, 0.98 in full), unless the model without
@@ -857,13 +858,7 @@ def test_superfluous(
         and without.gap.score <= STRUCTURED
         and _kept(final, without, contradicted=True)
     ):
-        full = min(
-            (
-                calibrate(c, data, anchor=config, ranges=ranges)
-                for c in (lean, without_effects(named, (name,)))
-            ),
-            key=lambda f: f.bic,
-        )
+        full = _without_in_full((name,), final.config, named, config, data, ranges)
         if full.bic < without.bic:
             without = replace(full, n_sims=full.n_sims + without.n_sims)
     delta_bic = without.bic - final.bic
@@ -999,6 +994,27 @@ def _start_with(origin: SimConfig, current: Fit, added: Sequence[str]) -> SimCon
     return named
 
 
+def _without_in_full(
+    names: Collection[str],
+    model: SimConfig,
+    named: SimConfig,
+    config: SimConfig,
+    data: Measured,
+    ranges: Mapping[str, float],
+) -> Fit:
+    """``model`` without the effects ``names``, fully calibrated from ``model`` and from
+    ``named`` (the uncalibrated start with the base changes and the named effects), the lower
+    BIC kept: a base fitted around an effect may not find its way back without it
+    (``drop_superfluous``)."""
+    return min(
+        (
+            calibrate(without_effects(c, names), data, anchor=config, ranges=ranges)
+            for c in (model, named)
+        ),
+        key=lambda f: f.bic,
+    )
+
+
 def drop_superfluous(
     current: Fit,
     names: Collection[str],
@@ -1020,13 +1036,7 @@ def drop_superfluous(
     still held the superfluous effect, one may have stood in for it (631: a slew limit).
     """
     named = _start_with(origin, current, added)
-    current = min(
-        (
-            calibrate(without_effects(c, names), data, anchor=config, ranges=ranges)
-            for c in (current.config, named)
-        ),
-        key=lambda f: f.bic,
-    )
+    current = _without_in_full(names, current.config, named, config, data, ranges)
     say(f"dropped {', '.join(sorted(names))}: held-out score {current.gap.score:.2f}")
     return _retest(current, added, config, data, ranges, say) if added else (current, [])
 
