@@ -326,9 +326,13 @@ def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig
         segment = prefix + encode_command(CommandFrame(1200 + 20 * k, 500), k)
         stream += segment
         rig.send(segment)
-        # Paced in virtual time: a co-simulation running below real time would otherwise get
-        # several segments at once, past the firmware's 64-byte receive ring (seen once).
-        rig.wait_virtual(0.06)
+        # Paced in virtual time from the bridge's receipt of each segment: a co-simulation
+        # running below real time would otherwise get several segments at once, past the
+        # firmware's 64-byte receive ring (seen once), and a co-simulation thread that read
+        # the pty late would let the next segment follow before a servo frame showed this
+        # one (a fresh clone, 2026-11-28: 1420 us never pulsed).
+        due = rig.chunk(segment).t_received + 0.06
+        assert rig.wait(lambda due=due: rig.bridge.virtual_time >= due, WAIT_S)
     rig.wait_virtual(0.1)
     expected = [
         f.message.pwm_us for f in FrameDecoder().feed(stream) if isinstance(f.message, CommandFrame)
