@@ -231,13 +231,13 @@ def test_what_stood_in_for_a_superfluous_effect_goes_with_it() -> None:
 
 def _only_superfluous(seed: int, name: str, preset: str = "t100") -> tuple:
     """The workflow on the mismatch trace ``seed`` of family ``preset`` whose start holds
-    ``name``, which the thruster lacks; the result and the one superfluity test that passed
-    (it must be ``name``'s)."""
+    ``name``, which the thruster lacks; the result, the one superfluity test that passed (it
+    must be ``name``'s) and the measured data."""
     case = make_mismatch_case((), seed, preset=preset, superfluous=(name,))
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
     [test] = [t for t in result.superfluous if t.superfluous]
     assert test.name == name
-    return result, test
+    return result, test, data
 
 
 def test_a_dead_time_standing_in_for_a_second_esc_stage_is_superfluous() -> None:
@@ -246,7 +246,7 @@ def test_a_dead_time_standing_in_for_a_second_esc_stage_is_superfluous() -> None
     it stands in for the stage: removed alone it costs (held-out 1.35 against 0.81, the BIC
     higher by 12245), and offered beside the dead time the stage gained 0.6 %. Removed with
     the stage in its place it is superfluous, and the stage is a base change."""
-    result, test = _only_superfluous(729, "dead_time")
+    result, test, _ = _only_superfluous(729, "dead_time")
     assert test.change is not None
     assert test.change.second_stage
     assert result.added == ()
@@ -262,7 +262,7 @@ def test_what_is_left_of_a_contradicted_effect_must_earn_its_place() -> None:
     still lowers the BIC (by 291) but not the held-out score (0.795 against 0.80 without).
     The data contradict the start's claim, and what is left would not be named missing, so
     it is superfluous."""
-    result, test = _only_superfluous(730, "deadband")
+    result, test, _ = _only_superfluous(730, "deadband")
     assert test.contradicted
     assert test.change is None
     assert test.delta_bic > 0.0  # the old rule's lower BIC does not hold
@@ -270,19 +270,29 @@ def test_what_is_left_of_a_contradicted_effect_must_earn_its_place() -> None:
     assert result.final.config.effect("deadband") is None
 
 
-def test_a_start_effect_fitted_to_none_is_contradicted_whatever_its_spread() -> None:
+def test_a_start_effect_fitted_to_none_is_contradicted_whatever_its_spread(tmp_path) -> None:
     """t100 mismatch 766 (a coarse speed sensor, coasting, a winding loss), the start holding
     a 0.55 s dead time the thruster lacks: the calibration fits it to 5e-9 s, where a delay
     has no slope, so its spread is infinite and was no contradiction. It moved all the way to
-    none: contradicted, removed, superfluous; report.json, strict JSON, gives the unbounded
-    spread as null."""
-    result, test = _only_superfluous(766, "dead_time")
+    none: contradicted, removed, superfluous; report.json and details.json, strict JSON, give
+    the unbounded spread as null."""
+    result, test, data = _only_superfluous(766, "dead_time")
     assert test.contradicted
     assert not math.isfinite(test.fitted_std["delay_s"])
     assert result.added == ()
     [entry] = result.report()["superfluous_effects"]
     assert entry["uncertainty"] == {"delay_s": None}
     json.dumps(result.report(), allow_nan=False)
+    write_report(result, data, tmp_path / "out")
+    details = (tmp_path / "out" / "details.json").read_text()
+    tests = json.loads(details, parse_constant=_refuse)["superfluous_tests"]
+    [sup] = [t for t in tests if t["name"] == "dead_time"]
+    assert sup["fitted_std"] == {"delay_s": None}
+
+
+def _refuse(constant: str) -> None:
+    """A ``json.loads`` hook that fails on Infinity or NaN, which strict JSON lacks."""
+    raise AssertionError(f"{constant} in strict JSON")
 
 
 def test_nothing_is_named_at_the_noise_level() -> None:
@@ -291,7 +301,7 @@ def test_nothing_is_named_at_the_noise_level() -> None:
     model without it (0.97 against 0.92, a BIC lower by 2279), but that model is at the noise
     level already, where the search begins no round, so it is superfluous (0.86 once
     dropped)."""
-    result, test = _only_superfluous(738, "deadband", preset="t200")
+    result, test, _ = _only_superfluous(738, "deadband", preset="t200")
     assert test.contradicted
     assert test.without.gap.score <= 1.0
     assert test.delta_bic > 0.0
