@@ -309,6 +309,21 @@ def test_nothing_is_named_at_the_noise_level() -> None:
     assert result.final.gap.score < test.score_with
 
 
+def test_a_choice_made_beside_a_dropped_start_effect_is_made_again() -> None:
+    """t200 mismatch 764 (an idle current growing by 0.063 A per 1000 rpm, a second-order
+    ESC), the start holding a 0.55 s dead time the thruster lacks: fitted to 0.055 s it
+    stands in for the second ESC stage, and beside it a viscous torque was named over the
+    idle-current law (cross-validated 1.50 against 1.54). Once the dead time is dropped, the
+    stage in its place, the choice is made again and the law takes the torque's place (1.16
+    against 1.19): nothing is named missing."""
+    result, test, _ = _only_superfluous(764, "dead_time", preset="t200")
+    assert test.change is not None
+    assert result.added == ()
+    assert [name for name, _rival in result.replaced] == ["viscous_friction"]
+    assert result.final.config.structure.i_idle_per_krpm_a > 0.0
+    assert result.final.gap.score < 1.1
+
+
 def test_weakly_seen_start_effect_is_not_superfluous(ci_results) -> None:
     """A start effect the unit has but the trace hardly excites (a 0.03 ohm sag on a
     low-current signal) is fitted towards none, but held at the start's value it scores no
