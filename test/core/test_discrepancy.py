@@ -309,6 +309,22 @@ def test_nothing_is_named_at_the_noise_level() -> None:
     assert result.final.gap.score < test.score_with
 
 
+def test_a_start_effect_standing_in_for_a_base_change_goes_with_it() -> None:
+    """t200 mismatch 684 (no drive saturation, a coarse speed sensor), the start holding a
+    0.034 deadband the thruster lacks: fitted to 0.0137, it still earns its place against the
+    plain removal (held-out 0.93 with it, 1.01 without), but with the start's drive saturation
+    removed in its place the model scores 0.77: the deadband is superfluous and the base
+    change adopted with its removal."""
+    result, test, _ = _only_superfluous(684, "deadband", preset="t200")
+    assert test.contradicted
+    assert test.change is not None
+    assert test.change.no_drive_saturation
+    assert result.added == ()
+    assert result.final.config.effect("deadband") is None
+    assert any(line.endswith("in place of deadband)") for line in result.base_changes)
+    assert result.final.gap.score < test.score_with
+
+
 def test_a_choice_made_beside_a_dropped_start_effect_is_made_again() -> None:
     """t200 mismatch 764 (an idle current growing by 0.063 A per 1000 rpm, a second-order
     ESC), the start holding a 0.55 s dead time the thruster lacks: fitted to 0.055 s it
