@@ -38,6 +38,7 @@ from thruster_fdd.core.diagnosis.table3 import (
     run_table3,
     table3_markdown,
 )
+from thruster_fdd.core.json_text import json_text
 from thruster_fdd.core.labels import CLASS_NAMES, UNKNOWN
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.sim.scenario import run_scenario
@@ -350,25 +351,10 @@ def run_evaluation(
     result["onset"] = fault_onsets(windows, nominal, classifier, progress=progress)
     result["unknown"] = unknown_rates(nominal, classifier)
     out = Path(out_dir)
-    write_text(out / "table3.json", _json(result))
+    write_text(out / "table3.json", json_text(result, nonfinite=str, indent=1))
     write_text(out / "table3.md", table3_markdown(result))
     plot_confusions(result, out)
     return result
-
-
-def _json(obj: Any) -> str:
-    import json
-
-    def clean(x: Any) -> Any:
-        if isinstance(x, float) and not np.isfinite(x):
-            return str(x)
-        if isinstance(x, dict):
-            return {k: clean(v) for k, v in x.items()}
-        if isinstance(x, list | tuple):
-            return [clean(v) for v in x]
-        return x
-
-    return json.dumps(clean(obj), indent=1) + "\n"
 
 
 _SHORT = ("15V", "13V", "11.8V", "1 blade", "2 blades", "fouled")

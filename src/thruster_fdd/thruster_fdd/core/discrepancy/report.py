@@ -35,6 +35,7 @@ from thruster_fdd.core.discrepancy.search import (
     Result,
 )
 from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.json_text import json_text
 from thruster_fdd.core.sim.config import SimConfig, dump_config
 
 REPORT_FILES = (
@@ -389,20 +390,6 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
     return "\n".join(lines)
 
 
-def _strict(value: object) -> object:
-    """``value`` as strict JSON data: numpy scalars as Python numbers, a non-finite float (a
-    spread the data do not bound, a score of a fit that failed) as None."""
-    if isinstance(value, dict):
-        return {key: _strict(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_strict(item) for item in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, Path]:
     """Write report.json, model.yaml, report.md, details.json and PNG plots into ``out``.
 
@@ -478,7 +465,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
         write_text(stage / "report.json", json.dumps(result.report(), indent=2) + "\n")
         dump_config(result.final.config, stage / "model.yaml")
         write_text(stage / "report.md", markdown(result, data, sims, plots))
-        write_text(stage / "details.json", json.dumps(_strict(details), indent=2) + "\n")
+        write_text(stage / "details.json", json_text(details, nonfinite=lambda _x: None, indent=2))
     files = {
         name: out / name for name in ("report.json", "model.yaml", "report.md", "details.json")
     }
