@@ -790,6 +790,18 @@ def test_a_choice_is_made_again_against_every_accepted_rival() -> None:
     assert result.replaced == (("coulomb_friction", "viscous_friction"),)
 
 
+def test_a_choice_is_made_again_against_an_effect_a_base_change_won_over() -> None:
+    """t100 mismatch 821 (a second-order ESC, other drive losses, k_q 0.39 times the
+    start's, a hidden Coulomb torque): the torque is accepted in the round the drive losses
+    win, then falls short of the gain against a deadband, which is named. Once k_q is
+    widened the deadband's choice is made again against the torque too, which takes its
+    place (it was named a deadband, with nothing else)."""
+    case = make_mismatch_case(("coulomb_friction",), 821, preset="t100")
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert result.added == ("coulomb_friction",)
+    assert result.replaced == (("deadband", "coulomb_friction"),)
+
+
 def test_a_choice_made_again_keeps_the_named_effect_in_a_tie_it_leads() -> None:
     """t100 mismatch 715 (a hidden Coulomb torque and slew limit): once the drive losses are
     adopted the torque's choice is made again; a deadband in its place cross-validates 1.33
