@@ -67,6 +67,10 @@ def change_states(
     return problems
 
 
+ASK_AGAIN_S = 2.0
+"""Wait for an answer to ``get_state``'s question before it is asked again, s."""
+
+
 def get_state(node: Node, executor: Any, target: str, timeout_s: float) -> str | None:
     """The current state label of lifecycle node ``target`` (``unconfigured``, ``inactive``,
     ``active``, ``finalized``), or None when it does not answer within ``timeout_s``."""
@@ -75,9 +79,16 @@ def get_state(node: Node, executor: Any, target: str, timeout_s: float) -> str |
     try:
         if not spin_until(executor, client.service_is_ready, deadline):
             return None
-        future = client.call_async(GetState.Request())
-        if not spin_until(executor, future.done, deadline):
-            return None
-        return str(future.result().current_state.label)
+        # Asked again every ASK_AGAIN_S: the service may be ready to the client before the
+        # server's answer can reach it, and Fast DDS then drops the answer ("failed to send
+        # response (timeout)", ros2/rmw_fastrtps#706); the question changes nothing.
+        futures = []
+        while time.monotonic() < deadline:
+            futures.append(client.call_async(GetState.Request()))
+            wait = min(deadline, time.monotonic() + ASK_AGAIN_S)
+            if spin_until(executor, lambda: any(f.done() for f in futures), wait):
+                done = next(f for f in futures if f.done())
+                return str(done.result().current_state.label)
+        return None
     finally:
         node.destroy_client(client)
