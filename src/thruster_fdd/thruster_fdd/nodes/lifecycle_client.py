@@ -14,6 +14,7 @@ from typing import Any
 
 from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.node import Node
+from rclpy.task import Future
 
 from thruster_fdd.nodes.common import spin_until
 
@@ -82,7 +83,7 @@ def get_state(node: Node, executor: Any, target: str, timeout_s: float) -> str |
         # Asked again every ASK_AGAIN_S: the service may be ready to the client before the
         # server's answer can reach it, and Fast DDS then drops the answer ("failed to send
         # response (timeout)", ros2/rmw_fastrtps#706); the question changes nothing.
-        futures = []
+        futures: list[Future] = []
         while time.monotonic() < deadline:
             futures.append(client.call_async(GetState.Request()))
             wait = min(deadline, time.monotonic() + ASK_AGAIN_S)
