@@ -18,11 +18,42 @@ from rclpy.task import Future
 
 from thruster_fdd.nodes.common import spin_until
 
+ASK_AGAIN_S = 2.0
+"""Wait for an answer before a question is asked again (``get_state``) or the state is asked
+(``change_states``), s."""
+
+
+GOAL_STATE = {
+    "configure": "inactive",
+    "activate": "active",
+    "deactivate": "inactive",
+    "cleanup": "unconfigured",
+    "shutdown": "finalized",
+}
+"""The primary state each transition leads to when it succeeds."""
+
+FROM_STATES = {
+    "configure": ("unconfigured",),
+    "activate": ("inactive",),
+    "deactivate": ("active",),
+    "cleanup": ("inactive",),
+    "shutdown": ("unconfigured", "inactive", "active"),
+}
+"""The primary states each transition starts from: a node still in one has not begun it."""
+
 
 def change_states(
     node: Node, executor: Any, targets: Sequence[str], transition: str, timeout_s: float
 ) -> dict[str, str]:
     """Request ``transition`` of every node in ``targets`` at once and wait for the answers.
+
+    An answer can be lost on the way (Fast DDS drops the answer to a client whose response
+    reader it has not matched yet, ros2/rmw_fastrtps#706). So a target that has not answered
+    within ``ASK_AGAIN_S`` is asked its state: in the transition's goal state it made the
+    transition; still in a state the transition starts from, it has not begun it and is asked
+    again; in between (``configuring``, ...) it is waited for. A refusal after a repeated
+    request counts only if the node is not in the goal state (the first request may have done
+    it, its answer lost).
 
     Parameters
     ----------
@@ -40,36 +71,62 @@ def change_states(
     -------
     dict of str to str
         For every target that did not make the transition, why (empty when all did).
+
+    Raises
+    ------
+    ValueError
+        For a transition label not listed above (a bug in the caller).
     """
+    if transition not in GOAL_STATE:
+        raise ValueError(f"unknown lifecycle transition {transition!r}")
     deadline = time.monotonic() + timeout_s
     clients = {
         target: node.create_client(ChangeState, f"{target}/change_state") for target in targets
     }
     problems: dict[str, str] = {}
+
+    def ask(target: str) -> Future:
+        request = ChangeState.Request()
+        request.transition.label = transition
+        return clients[target].call_async(request)
+
     try:
         spin_until(executor, lambda: all(c.service_is_ready() for c in clients.values()), deadline)
-        futures = {}
+        asked: dict[str, list[Future]] = {}
         for target, client in clients.items():
-            if not client.service_is_ready():
+            if client.service_is_ready():
+                asked[target] = [ask(target)]
+            else:
                 problems[target] = f"no {target}/change_state service"
-                continue
-            request = ChangeState.Request()
-            request.transition.label = transition
-            futures[target] = client.call_async(request)
-        spin_until(executor, lambda: all(f.done() for f in futures.values()), deadline)
-        for target, future in futures.items():
-            if not future.done():
-                problems[target] = f"no answer to {transition} within {timeout_s:g} s"
-            elif not future.result().success:
-                problems[target] = f"{transition} failed (see the node's log)"
+        while asked and time.monotonic() < deadline:
+            wait = min(deadline, time.monotonic() + ASK_AGAIN_S)
+            spin_until(
+                executor, lambda: all(any(f.done() for f in fs) for fs in asked.values()), wait
+            )
+            for target, futures in list(asked.items()):
+                answers = [f.result().success for f in futures if f.done()]
+                if any(answers):
+                    del asked[target]
+                    continue
+                if answers and len(futures) == 1:
+                    problems[target] = f"{transition} failed (see the node's log)"
+                    del asked[target]
+                    continue
+                left = deadline - time.monotonic()
+                state = get_state(node, executor, target, min(ASK_AGAIN_S, max(left, 0.0)))
+                if state == GOAL_STATE[transition]:
+                    del asked[target]
+                elif answers:
+                    problems[target] = f"{transition} failed (see the node's log)"
+                    del asked[target]
+                elif state in FROM_STATES[transition]:
+                    futures.append(ask(target))
+        for target in asked:
+            problems[target] = f"no answer to {transition} within {timeout_s:g} s"
     finally:
         for client in clients.values():
             node.destroy_client(client)
     return problems
-
-
-ASK_AGAIN_S = 2.0
-"""Wait for an answer to ``get_state``'s question before it is asked again, s."""
 
 
 def get_state(node: Node, executor: Any, target: str, timeout_s: float) -> str | None:
