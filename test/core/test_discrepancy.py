@@ -802,6 +802,19 @@ def test_a_choice_is_made_again_against_an_effect_a_base_change_won_over() -> No
     assert result.replaced == (("deadband", "coulomb_friction"),)
 
 
+def test_a_friction_torque_is_tried_together_with_the_other_braking_law() -> None:
+    """t100 mismatch 835 (a coasting rotor, drive saturation, inertia 2.2 times the start's,
+    a hidden Coulomb torque and slew limit): coasting alone fits worse than the regenerative
+    braking the start has (nothing but drag stops the rotor) and the torque alone leaves the
+    braking doing part of its work, so a deadband was named in its place. Tried together
+    they fit to the noise, and the torque is named with coasting adopted."""
+    case = make_mismatch_case(("coulomb_friction", "slew_rate_limit"), 835, preset="t100")
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert set(result.added) == {"coulomb_friction", "slew_rate_limit"}
+    assert any(line.startswith("coasting, no regeneration") for line in result.base_changes)
+    assert not result.final.config.structure.regen
+
+
 def test_a_choice_made_again_keeps_the_named_effect_in_a_tie_it_leads() -> None:
     """t100 mismatch 715 (a hidden Coulomb torque and slew limit): once the drive losses are
     adopted the torque's choice is made again; a deadband in its place cross-validates 1.33
