@@ -28,6 +28,8 @@ from thruster_fdd.core.discrepancy.measure import (
 )
 from thruster_fdd.core.discrepancy.search import (
     AT_BOUND,
+    BASE_GAIN,
+    BIC_EVIDENCE,
     CONTRADICTED,
     MIN_GAIN,
     SAME_CHOICE,
@@ -357,9 +359,12 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         lines += [
             f"## Round {k}: candidates",
             "",
-            f"Accepted: ΔBIC < 0 on the fit samples, and a held-out gain and an own gain of at "
-            f"least {MIN_GAIN:g} (gain: the fraction of the excess over noise removed; own gain: "
-            f"what taking the effect out of the re-fit again costs on the fit samples).",
+            f"Accepted: ΔBIC < -{BIC_EVIDENCE:g} on the fit samples, and a held-out gain and an "
+            f"own gain of at least {MIN_GAIN:g} (gain: the fraction of the excess over noise "
+            f"removed; own gain: what taking the effect out of the re-fit again costs on the fit "
+            f"samples); a widened bound that is not the round's best needs a held-out gain of "
+            f"{BASE_GAIN:g}; an effect re-fitted with a base change must also gain on the effect "
+            f"alone (docs/discrepancy.md, Method step 4).",
             "",
             "| effect | ΔBIC (fit) | held-out gain | own gain | held-out score | accepted |",
             "|---|---|---|---|---|---|",
