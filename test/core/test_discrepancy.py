@@ -815,6 +815,18 @@ def test_a_friction_torque_is_tried_together_with_the_other_braking_law() -> Non
     assert not result.final.config.structure.regen
 
 
+def test_the_other_braking_law_needs_its_own_evidence_beside_a_friction_torque() -> None:
+    """t100 mismatch 836 (a regenerating thruster with an idle-current law, a hidden Coulomb
+    torque and slew limit): coasting alone raises the BIC; with the torque it fits 18 %
+    better than the torque alone, standing in for the slew limit's slow deceleration. It is
+    not taken, and the two hidden effects are named with nothing else (a viscous torque was
+    named beside them when the braking law needed no evidence of its own)."""
+    case = make_mismatch_case(("coulomb_friction", "slew_rate_limit"), 836, preset="t100")
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert set(result.added) == {"coulomb_friction", "slew_rate_limit"}
+    assert result.final.config.structure.regen
+
+
 def test_a_choice_made_again_keeps_the_named_effect_in_a_tie_it_leads() -> None:
     """t100 mismatch 715 (a hidden Coulomb torque and slew limit): once the drive losses are
     adopted the torque's choice is made again; a deadband in its place cross-validates 1.33
