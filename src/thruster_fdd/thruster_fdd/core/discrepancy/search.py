@@ -755,13 +755,18 @@ def _best_widening(results: list[Candidate], widen: BaseChange | None) -> list[C
     return [replace(c, accepted=passes) if c is top else c for c in results]
 
 
-BRAKING_PARTNERS = ("coulomb_friction", "viscous_friction")
-"""Effects also tried jointly with the other braking law (``_with_braking``): the rotor's
-spin-down is the braking law and the friction together. A coasting rotor with a friction
-torque was fitted worse by coasting alone (no friction stops it) and by a torque alone (the
-regenerative braking the model has does part of the torque's work), so neither was taken
-(t100 mismatch 835, a hidden Coulomb torque and slew limit on a coasting thruster: coasting
-alone held-out 5.3, the torque 1.8, a deadband 2.0 and named; the two together 1.17)."""
+BRAKING_PARTNERS = ("coulomb_friction",)
+"""Effects also tried jointly with the other braking law (``_with_braking``): a coasting
+rotor's spin-down is its drag and a Coulomb torque, which stops it in finite time. A coasting
+rotor with a Coulomb torque was fitted worse by coasting alone (nothing but drag stops it)
+and by the torque alone (the regenerative braking the model has does part of the torque's
+work), so neither was taken (t100 mismatch 835, a hidden Coulomb torque and slew limit on a
+coasting thruster: in the first round coasting alone held-out 15.5, the torque alone 7.3,
+the two together 5.5; without the joint re-fit a deadband was named and the search ended
+at 1.43, with it at 1.17). Not the viscous torque: a viscous drag adds to the propeller's,
+and paired with coasting it took the place of the idle current growing with speed that it
+already stands in for (t100 mismatch 715: a viscous torque with coasting cross-validated
+1.23 against the drive losses' 1.30 and was named beside the hidden Coulomb torque)."""
 
 
 def _with_braking(results: list[Candidate], braking: BaseChange | None) -> list[Candidate]:
