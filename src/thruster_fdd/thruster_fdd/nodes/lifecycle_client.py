@@ -108,12 +108,11 @@ def change_states(
                 if any(answers):
                     del asked[target]
                     continue
-                if answers and len(futures) == 1:
-                    problems[target] = f"{transition} failed (see the node's log)"
-                    del asked[target]
-                    continue
-                left = deadline - time.monotonic()
-                state = get_state(node, executor, target, min(ASK_AGAIN_S, max(left, 0.0)))
+                state = None
+                if not answers or len(futures) > 1:
+                    # A refusal of the only request is the answer; otherwise the state tells.
+                    left = deadline - time.monotonic()
+                    state = get_state(node, executor, target, min(ASK_AGAIN_S, max(left, 0.0)))
                 if state == GOAL_STATE[transition]:
                     del asked[target]
                 elif answers:
