@@ -802,17 +802,26 @@ def test_a_choice_is_made_again_against_an_effect_a_base_change_won_over() -> No
     assert result.replaced == (("deadband", "coulomb_friction"),)
 
 
-def test_a_friction_torque_is_tried_together_with_the_other_braking_law() -> None:
+def test_a_friction_torque_is_tried_together_with_the_other_braking_law(tmp_path: Path) -> None:
     """t100 mismatch 835 (a coasting rotor, drive saturation, inertia 2.2 times the start's,
     a hidden Coulomb torque and slew limit): coasting alone fits worse than the regenerative
     braking the start has (nothing but drag stops the rotor) and the torque alone leaves the
     braking doing part of its work, so a deadband was named in its place. Tried together
-    they fit to the noise, and the torque is named with coasting adopted."""
+    they fit to the noise, and the torque is named with coasting adopted. report.md's gap
+    row of that round is the joint re-fit's, not the torque's alone."""
     case = make_mismatch_case(("coulomb_friction", "slew_rate_limit"), 835, preset="t100")
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert set(result.added) == {"coulomb_friction", "slew_rate_limit"}
     assert any(line.startswith("coasting, no regeneration") for line in result.base_changes)
     assert not result.final.config.structure.regen
+    [joint] = [r for r in result.rounds if r.chosen_with is not None]
+    assert joint.chosen == "coulomb_friction"
+    [taken] = [c for c in joint.candidates if c.accepted and c.joint and c.name == joint.chosen]
+    write_report(result, data, tmp_path / "out")
+    text = (tmp_path / "out" / "report.md").read_text()
+    row = f"| + coulomb_friction + {joint.chosen_with} (candidate re-fit) |"
+    [line] = [line for line in text.splitlines() if line.startswith(row)]
+    assert line.endswith(f"| {taken.fit.gap.score:.2f} |")
 
 
 def test_the_other_braking_law_needs_its_own_evidence_beside_a_friction_torque() -> None:

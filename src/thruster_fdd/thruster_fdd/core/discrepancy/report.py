@@ -34,7 +34,9 @@ from thruster_fdd.core.discrepancy.search import (
     MIN_GAIN,
     SAME_CHOICE,
     STRUCTURED,
+    Candidate,
     Result,
+    Round,
 )
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.json_text import json_text
@@ -153,6 +155,13 @@ def _fmt(x: float) -> str:
     if not math.isfinite(x):
         return str(x)
     return f"{x:.4g}"
+
+
+def _is_chosen(c: Candidate, rnd: Round) -> bool:
+    """Whether candidate ``c`` is the one round ``rnd`` took: accepted, and re-fitted with the
+    base change it was taken with (an effect may be tried alone and with one)."""
+    joint = c.joint.label if c.joint else None
+    return c.accepted and c.name == rnd.chosen and joint == rnd.chosen_with
 
 
 def _gap_rows(label: str, fit: Fit) -> str:
@@ -351,9 +360,10 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
         _gap_rows("calibrated start", result.start),
     ]
     for rnd in result.rounds:
-        chosen = next((c for c in rnd.candidates if c.name == rnd.chosen and c.accepted), None)
+        chosen = next((c for c in rnd.candidates if _is_chosen(c, rnd)), None)
         if chosen is not None:
-            lines.append(_gap_rows(f"+ {chosen.name} (candidate re-fit)", chosen.fit))
+            label = f"{chosen.name} + {rnd.chosen_with}" if rnd.chosen_with else chosen.name
+            lines.append(_gap_rows(f"+ {label} (candidate re-fit)", chosen.fit))
     lines += [_gap_rows("final (calibrated)", result.final), ""]
     for k, rnd in enumerate(result.rounds, 1):
         lines += [
@@ -427,6 +437,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
         "rounds": [
             {
                 "chosen": rnd.chosen,
+                "chosen_with": rnd.chosen_with,
                 "finals": [
                     {"name": name, "held_out_score": held, "cv_score": score, "bic": bic}
                     for name, held, score, bic in rnd.finals

@@ -178,12 +178,16 @@ class Round:
     finals : tuple of (str, float, float, float)
         The fully calibrated candidates the choice was between: name, held-out score,
         cross-validated score (``_cross_validated``; the held-out score when alone), BIC.
+    chosen_with : str or None
+        The label of the base change the chosen effect was re-fitted with
+        (``Candidate.joint``), if any.
     """
 
     before: Fit
     candidates: tuple[Candidate, ...]
     chosen: str | None
     finals: tuple[tuple[str, float, float, float], ...] = ()
+    chosen_with: str | None = None
 
     @property
     def rivals(self) -> tuple[tuple[str, float, float, float], ...]:
@@ -420,7 +424,8 @@ def try_candidate(
     calibration (``FULL_ITER``) and judged again.
 
     With ``change`` (a base change tried jointly with the effect, ``Candidate.joint``) both
-    origins get the change first; the candidate is still judged against ``base``.
+    origins get the change first (a widened bound changes only the bounds, ``ranges``); the
+    candidate is still judged against ``base``.
     """
     starts = []
     n_trials = 0
@@ -1389,13 +1394,11 @@ def search(
             # alone gains under 15 %). Each effect is re-fitted with the bound widened; it is
             # accepted by the rules of an effect, and the widening must remove BASE_GAIN of
             # what the effect alone left (on the T200 bench trace it removes a quarter).
-            jobs = [(n, current, data, named, config, widen.ranges) for n in names]
+            jobs = [((n, widen), current, data, named, config, widen.ranges) for n in names]
             alone = {c.name: c for c in results if c.joint is None}
             for c in _run_jobs(jobs, workers, progress, "candidates with a wider bound"):
-                before = alone[c.name].fit.gap.score
-                marginal = _excess_gain(before, c.fit.gap.score)
-                joint = replace(c, joint=widen, accepted=c.accepted and marginal >= BASE_GAIN)
-                results.append(joint)
+                marginal = _excess_gain(alone[c.name].fit.gap.score, c.fit.gap.score)
+                results.append(replace(c, accepted=c.accepted and marginal >= BASE_GAIN))
             accepted = sorted((c for c in results if c.accepted), key=lambda c: c.fit.gap.score)
         for c in sorted(results, key=lambda c: c.fit.gap.score):
             label = f"{c.name} + {c.joint.label}" if c.joint else c.name
@@ -1433,6 +1436,7 @@ def search(
                 candidates=tuple(results),
                 chosen=chosen.name if chosen else None,
                 finals=tuple((c.name, full.gap.score, cv, full.bic) for c, full, cv in scored),
+                chosen_with=chosen.joint.label if chosen and chosen.joint else None,
             )
         )
         if chosen is None or best is None:
