@@ -533,6 +533,16 @@ def test_a_candidate_whose_short_refit_is_unfinished_is_judged_after_a_full_one(
     )
 
 
+def test_two_effects_that_pass_only_together_are_named() -> None:
+    """Exact-base 202 (60 s; a 0.9 s ESC lag and a deadband hidden): each alone makes the
+    held-out error worse (the lag 19.5 -> 22.3, the deadband 59.7) while the two together fit
+    to the noise; the pair lets the lag in and the next round names the deadband."""
+    case = make_case(("deadband", "esc_lag"), 202, duration_s=60.0)
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert set(result.added) == {"deadband", "esc_lag"}
+    assert result.final.gap.score < 1.2
+
+
 def test_drive_losses_are_fitted_only_once_adopted() -> None:
     """The drive-loss terms a start lacks are not calibrated until the search adopts them as a
     base change (on traces of the start's own build they absorbed friction); the change frees
