@@ -533,14 +533,22 @@ def test_a_candidate_whose_short_refit_is_unfinished_is_judged_after_a_full_one(
     )
 
 
-def test_two_effects_that_pass_only_together_are_named() -> None:
+def test_two_effects_that_pass_only_together_are_named(tmp_path: Path) -> None:
     """Exact-base 202 (60 s; a 0.9 s ESC lag and a deadband hidden): each alone makes the
     held-out error worse (the lag 19.5 -> 22.3, the deadband 59.7) while the two together fit
-    to the noise; the pair lets the lag in and the next round names the deadband."""
+    to the noise; the pair lets the lag in and the next round names the deadband. report.md
+    and details.json show the pairs fitted."""
     case = make_case(("deadband", "esc_lag"), 202, duration_s=60.0)
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
-    assert set(result.added) == {"deadband", "esc_lag"}
+    result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert result.added == ("esc_lag", "deadband")
     assert result.final.gap.score < 1.2
+    [taken] = [p for p in result.rounds[0].pairs if p.accepted]
+    assert (taken.lead, taken.partner) == ("esc_lag", "deadband")
+    write_report(result, data, tmp_path / "out")
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "| `esc_lag` with `deadband` (pair) |" in text
+    details = json.loads((tmp_path / "out" / "details.json").read_text())
+    assert [p["partner"] for p in details["rounds"][0]["pairs"] if p["accepted"]] == ["deadband"]
 
 
 def test_drive_losses_are_fitted_only_once_adopted() -> None:

@@ -374,7 +374,9 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
             f"removed; own gain: what taking the effect out of the re-fit again costs on the fit "
             f"samples); a widened bound that is not the round's best needs a held-out gain of "
             f"{BASE_GAIN:g}; an effect re-fitted with a base change must also gain on the effect "
-            f"alone (docs/discrepancy.md, Method step 4).",
+            f"alone; when none passes and the held-out score is above {STRUCTURED:g}, an effect is "
+            f"accepted whose pair with another passes and each part gains on the other alone "
+            f"(docs/discrepancy.md, Method step 4).",
             "",
             "| effect | ΔBIC (fit) | held-out gain | own gain | held-out score | accepted |",
             "|---|---|---|---|---|---|",
@@ -384,6 +386,11 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
             lines.append(
                 f"| {name} | {c.delta_bic:.1f} | {c.gain:.2f} | {c.own_gain:.2f} | "
                 f"{c.fit.gap.score:.2f} | {'yes' if c.accepted else 'no'} |"
+            )
+        for p in rnd.pairs:
+            lines.append(
+                f"| `{p.lead}` with `{p.partner}` (pair) | {p.delta_bic:.1f} | {p.gain:.2f} | - | "
+                f"{p.score:.2f} | {'yes: the lead' if p.accepted else 'no'} |"
             )
         lines.append("")
     for key in ("before", "after"):
@@ -438,6 +445,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
             {
                 "chosen": rnd.chosen,
                 "chosen_with": rnd.chosen_with,
+                "pairs": [p.__dict__ for p in rnd.pairs],
                 "finals": [
                     {"name": name, "held_out_score": held, "cv_score": score, "bic": bic}
                     for name, held, score, bic in rnd.finals

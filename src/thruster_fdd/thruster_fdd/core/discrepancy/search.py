@@ -182,6 +182,8 @@ class Round:
     chosen_with : str or None
         The label of the base change the chosen effect was re-fitted with
         (``Candidate.joint``), if any.
+    pairs : tuple of Pair
+        Effects fitted in pairs when none passed alone (``_paired``).
     """
 
     before: Fit
@@ -189,12 +191,39 @@ class Round:
     chosen: str | None
     finals: tuple[tuple[str, float, float, float], ...] = ()
     chosen_with: str | None = None
+    pairs: tuple[Pair, ...] = ()
 
     @property
     def rivals(self) -> tuple[tuple[str, float, float, float], ...]:
         """Finals not chosen whose cross-validated score is within ``SAME_CHOICE`` of the
         best: the data fit them about as well as the chosen one (``_tied``)."""
         return tuple(f for f in _tied(self.finals, lambda f: f[2]) if f[0] != self.chosen)
+
+
+@dataclass(frozen=True)
+class Pair:
+    """Two effects fitted together when none passed alone (``_paired``).
+
+    Attributes
+    ----------
+    lead, partner : str
+        Effect names; the partner was re-fitted on the lead's re-fit.
+    delta_bic : float
+        BIC of the pair's re-fit minus the round's model's, on the fit samples.
+    gain : float
+        Fraction of the round's model's held-out excess the pair removes.
+    score : float
+        Held-out score of the pair's re-fit.
+    accepted : bool
+        Whether the pair passes (its lead is then accepted).
+    """
+
+    lead: str
+    partner: str
+    delta_bic: float
+    gain: float
+    score: float
+    accepted: bool
 
 
 @dataclass(frozen=True)
@@ -815,9 +844,9 @@ def _paired(
     workers: int,
     progress: bool,
     say: Callable[[str], None],
-) -> list[Candidate]:
+) -> tuple[list[Candidate], tuple[Pair, ...]]:
     """``results`` with one effect accepted that passes only together with another, when none
-    passes alone.
+    passes alone, and the pairs fitted.
 
     Of the ``PAIR_TOP`` effects that lower the BIC most (each by ``BIC_EVIDENCE``, with the
     own gain), each pair is fitted: the partner re-fitted on the re-fit of the effect that
@@ -844,12 +873,12 @@ def _paired(
         sorted(pair, key=lambda c: c.fit.gap.score) for pair in itertools.combinations(singles, 2)
     ]
     if not pairs:
-        return results
+        return results, ()
     jobs = [
         (b.name, a.fit, data, _start_with(origin, a.fit, (*added, a.name)), anchor, ranges)
         for a, b in pairs
     ]
-    best: tuple[Candidate, Fit] | None = None
+    fitted = []
     for (a, b), c in zip(
         pairs, _run_jobs(jobs, workers, progress, "pairs of effects"), strict=True
     ):
@@ -862,15 +891,16 @@ def _paired(
             and own_lead >= MIN_GAIN
             and _passes(delta_bic, gain, MIN_GAIN)
         )
+        fitted.append(Pair(a.name, b.name, delta_bic, gain, c.fit.gap.score, passes))
         say(
             f"  {a.name} + {b.name:17s} dBIC {delta_bic:12.1f} gain {gain:6.2f} "
             f"held-out score {c.fit.gap.score:9.2f}{'  accepted' if passes else ''}"
         )
-        if passes and (best is None or c.fit.gap.score < best[1].gap.score):
-            best = (a, c.fit)
+    best = min((p for p in fitted if p.accepted), key=lambda p: p.score, default=None)
     if best is None:
-        return results
-    return [replace(c, accepted=True) if c is best[0] else c for c in results]
+        return results, tuple(fitted)
+    lead = next(a for a, _ in pairs if a.name == best.lead)
+    return [replace(c, accepted=True) if c is lead else c for c in results], tuple(fitted)
 
 
 T = TypeVar("T")
@@ -1474,8 +1504,9 @@ def search(
                 marginal = _excess_gain(alone[c.name].fit.gap.score, c.fit.gap.score)
                 results.append(replace(c, accepted=c.accepted and marginal >= BASE_GAIN))
             accepted = sorted((c for c in results if c.accepted), key=lambda c: c.fit.gap.score)
+        pairs: tuple[Pair, ...] = ()
         if not accepted and current.gap.score > STRUCTURED:
-            results = _paired(
+            results, pairs = _paired(
                 results, current, data, origin, added, config, ranges, workers, progress, say
             )
             accepted = [c for c in results if c.accepted]
@@ -1516,6 +1547,7 @@ def search(
                 chosen=chosen.name if chosen else None,
                 finals=tuple((c.name, full.gap.score, cv, full.bic) for c, full, cv in scored),
                 chosen_with=chosen.joint.label if chosen and chosen.joint else None,
+                pairs=pairs,
             )
         )
         if chosen is None or best is None:
