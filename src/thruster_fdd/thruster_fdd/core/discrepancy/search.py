@@ -848,8 +848,8 @@ def _paired(
     """``results`` with one effect accepted that passes only together with another, when none
     passes alone, and the pairs fitted.
 
-    Of the ``PAIR_TOP`` effects that lower the BIC most (each by ``BIC_EVIDENCE``, with the
-    own gain), each pair is fitted: the partner re-fitted on the re-fit of the effect that
+    Of the ``PAIR_TOP`` effects that lower the BIC most (each by ``BIC_EVIDENCE``), each pair
+    is fitted: the partner re-fitted on the re-fit of the effect that
     alone leaves less held-out error (the lead; ``origin`` is the uncalibrated start with the
     effects ``added``). A pair passes by an effect's rules against ``current`` and if each
     part removes ``MIN_GAIN`` of the held-out excess the other alone leaves and accounts for
@@ -862,10 +862,7 @@ def _paired(
         (
             c
             for c in results
-            if c.joint is None
-            and c.name in EFFECTS
-            and c.delta_bic < -BIC_EVIDENCE
-            and c.own_gain >= MIN_GAIN
+            if c.joint is None and c.name in EFFECTS and c.delta_bic < -BIC_EVIDENCE
         ),
         key=lambda c: c.delta_bic,
     )[:PAIR_TOP]
