@@ -362,8 +362,7 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
     for rnd in result.rounds:
         chosen = next((c for c in rnd.candidates if _is_chosen(c, rnd)), None)
         if chosen is not None:
-            label = f"{chosen.name} + {rnd.chosen_with}" if rnd.chosen_with else chosen.name
-            lines.append(_gap_rows(f"+ {label} (candidate re-fit)", chosen.fit))
+            lines.append(_gap_rows(f"+ {chosen.label} (candidate re-fit)", chosen.fit))
     lines += [_gap_rows("final (calibrated)", result.final), ""]
     for k, rnd in enumerate(result.rounds, 1):
         lines += [

@@ -163,6 +163,11 @@ class Candidate:
     own_gain: float = math.nan
     joint: BaseChange | None = None
 
+    @property
+    def label(self) -> str:
+        """The effect's name, with the base change it was re-fitted with, if any."""
+        return f"{self.name} + {self.joint.label}" if self.joint else self.name
+
 
 @dataclass(frozen=True)
 class Round:
@@ -849,10 +854,10 @@ def _paired(
     passes alone, and the pairs fitted.
 
     Of the ``PAIR_TOP`` effects that lower the BIC most (each by ``BIC_EVIDENCE``), each pair
-    is fitted: the partner re-fitted on the re-fit of the effect that
-    alone leaves less held-out error (the lead; ``origin`` is the uncalibrated start with the
-    effects ``added``). A pair passes by an effect's rules against ``current`` and if each
-    part removes ``MIN_GAIN`` of the held-out excess the other alone leaves and accounts for
+    is fitted: the partner re-fitted on the re-fit of the effect that alone leaves less
+    held-out error (the lead; ``origin`` is the uncalibrated start with the effects
+    ``added``). A pair passes by an effect's rules against ``current`` and if each part
+    removes ``MIN_GAIN`` of the held-out excess the other alone leaves and accounts for
     ``MIN_GAIN`` of the excess on the fit samples. The lead of the best pair that passes is
     accepted; the next round finds its partner by the usual rules. Two effects can each make
     the held-out error worse alone (exact-base 202, a hidden 0.9 s ESC lag and a deadband on a
@@ -1508,10 +1513,10 @@ def search(
             )
             accepted = [c for c in results if c.accepted]
         for c in sorted(results, key=lambda c: c.fit.gap.score):
-            label = f"{c.name} + {c.joint.label}" if c.joint else c.name
             say(
-                f"  {label:17s} dBIC {c.delta_bic:12.1f} gain {c.gain:6.2f} own {c.own_gain:6.2f} "
-                f"held-out score {c.fit.gap.score:9.2f}{'  accepted' if c.accepted else ''}"
+                f"  {c.label:17s} dBIC {c.delta_bic:12.1f} gain {c.gain:6.2f} "
+                f"own {c.own_gain:6.2f} held-out score {c.fit.gap.score:9.2f}"
+                f"{'  accepted' if c.accepted else ''}"
             )
         # The effects' re-fits are short (CANDIDATE_ITER); the best N_FINALS accepted candidates
         # get a full calibration each (a base change had one already) and the better of those
