@@ -63,6 +63,7 @@ from thruster_fdd.core.discrepancy.search import (
     _choose,
     _excess_gain,
     base_changes,
+    candidate_grid,
     run_workflow,
     start_config,
     try_base_change,
@@ -698,6 +699,19 @@ def test_a_third_candidate_is_fully_calibrated_before_the_choice() -> None:
     viscous torque's 0.94) and was not fully calibrated; the drive losses were taken and the
     torque was not named. Fully calibrated it fits best (0.81), and both are named."""
     case = make_case(("coulomb_friction", "voltage_sag"), 646, duration_s=60.0)
+    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
+    assert sorted(result.added) == ["coulomb_friction", "voltage_sag"]
+    assert result.base_changes == ()
+
+
+def test_the_coulomb_grid_reaches_torques_large_against_a_slow_trace() -> None:
+    """Exact-base 1649 (a 0.016 N m Coulomb torque and a voltage sag on a ``lowspeed``
+    trace): the grid scales with the load torque at the trace's top speed, and from its old
+    top (0.15 of it) the torque's re-fit beside the sag stopped at BIC -3323, behind the drive
+    losses' -3325. The grid reaches 0.6 of it, and both are named."""
+    case = make_case(("coulomb_friction", "voltage_sag"), 1649, duration_s=60.0)
+    grid = candidate_grid("coulomb_friction", case.start, prepare_measured(case.trace, case.start))
+    assert grid[-1]["torque_nm"] > case.hidden["coulomb_friction"]["torque_nm"]
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert sorted(result.added) == ["coulomb_friction", "voltage_sag"]
     assert result.base_changes == ()
