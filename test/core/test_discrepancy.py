@@ -710,9 +710,9 @@ def test_the_coulomb_grid_reaches_torques_large_against_a_slow_trace() -> None:
     top (0.15 of it) the torque's re-fit beside the sag stopped at BIC -3323, behind the drive
     losses' -3325. The grid reaches 0.6 of it, and both are named."""
     case = make_case(("coulomb_friction", "voltage_sag"), 1649, duration_s=60.0)
-    grid = candidate_grid("coulomb_friction", case.start, prepare_measured(case.trace, case.start))
+    result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
+    grid = candidate_grid("coulomb_friction", case.start, data)
     assert grid[-1]["torque_nm"] > case.hidden["coulomb_friction"]["torque_nm"]
-    result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert sorted(result.added) == ["coulomb_friction", "voltage_sag"]
     assert result.base_changes == ()
 
