@@ -14,7 +14,9 @@ Per case and seed it runs the workflow and records what was hidden, named (missi
 superfluous), the parameter errors and the gap before and after; it prints one Markdown table
 per family: exact naming, parameter error, gap shrink, model error (against the unit's
 noise-free response), and the false-positive rate of the null traces with a one-sided 95 %
-upper bound. Runs go to ``--workers`` processes, one run each.
+upper bound. Runs go to ``--workers`` processes, one run each. ``--json`` keeps each run's
+row, with how the search got there: the rivals of each choice, the named effects a later
+choice replaced, the base changes made and the pairs of effects taken together.
 
 Usage::
 
@@ -176,6 +178,8 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         **_visibility_columns(_visibility(case, data, seed)),
         "rivals": [[rnd.chosen, name] for rnd in result.rounds for name, *_ in rnd.rivals],
         "replaced": [list(pair) for pair in result.replaced],
+        "base_changes": list(result.base_changes),
+        "pairs": [[p.lead, p.partner] for rnd in result.rounds for p in rnd.pairs if p.accepted],
     }
 
 
