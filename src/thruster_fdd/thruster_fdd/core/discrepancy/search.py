@@ -868,8 +868,9 @@ def _paired(
     removes ``MIN_GAIN`` of the held-out excess the other alone leaves and accounts for
     ``MIN_GAIN`` of the excess on the fit samples. The lead of the best pair that passes is
     accepted; the next round finds its partner by the usual rules. Two effects can each make
-    the held-out error worse alone (exact-base 202, a hidden 0.9 s ESC lag and a deadband on a
-    60 s trace: the lag alone 19.5 -> 22.3, the deadband alone 59.7, the two together 1.1).
+    the held-out error worse alone (exact-base 267, a hidden 0.78 s ESC lag and a deadband on
+    a 60 s trace, coasting adopted: the lag alone 5.2 -> 40.8, the deadband alone 120, the two
+    together 1.05).
     """
     singles = sorted(
         (
@@ -996,8 +997,9 @@ def test_superfluous(
     fitted = effect.params()
     std = {p: final.uncertainty(f"{name}.{p}") for p in claimed}
     neutral = NEUTRAL[name]
-    # At none a delay or a band has no slope (a 0.55 s dead time fitted to 5e-9 s, t100
-    # mismatch 766: std inf), so there its spread says nothing and the move itself decides.
+    # At none a delay, a band or a limit has no slope (a 7 A current limit the thruster lacks
+    # fitted to 10.27 A, above every current of the trace: std inf), so there its spread says
+    # nothing and the move itself decides.
     contradicted = all(
         abs(fitted[p] - neutral) <= AT_NONE * abs(claimed[p] - neutral)
         or (
@@ -1031,9 +1033,9 @@ def test_superfluous(
             if full.bic < without.bic:
                 without = replace(full, n_sims=full.n_sims + without.n_sims)
         # What the effect stood in for may be a base change the search never offered while
-        # the effect was there (t200 mismatch 684: a 0.0137 deadband, held-out 0.93, 1.01
-        # without it; the thruster lacks the start's drive saturation, and with it removed in
-        # the deadband's place 0.77, a BIC lower by 1408).
+        # the effect was there (t200 mismatch 20: a 0.0035 deadband the thruster lacks,
+        # held-out 0.96, kept against its plain removal; with the winding loss re-fitted
+        # within x4 in its place, 0.93).
         if _left_in(final, without):
             offered = {c.label: c for c in base_changes(without, config, ranges)}
             tried = [
@@ -1048,9 +1050,9 @@ def test_superfluous(
     score_claim = math.nan
     if ok:
         # Removing it must shrink the gap against what the start claims: the effect held at
-        # its start values, everything else re-fitted, must score clearly worse than none (an
-        # exact-base null trace on the low-current signal fitted the start's 0.03 ohm sag to
-        # 2e-5 +- 0.006, which the unit has: held at 0.03, the same score).
+        # its start values, everything else re-fitted, must score clearly worse than none (on
+        # an exact-base null trace on the low-current signal, the unit's 14 A current limit,
+        # never reached, sits where it does nothing: held at 14 A, the same score).
         claim = set_effect(final.config, config.effect(name))
         keys = [k for k in free_parameters(claim, config, ranges) if not k.startswith(f"{name}.")]
         held = calibrate(claim, data, keys, max_iter=CANDIDATE_ITER, anchor=config, ranges=ranges)
@@ -1282,7 +1284,9 @@ def _revisit(
     0.06 s second stage, a coasting rotor) named a 0.047 s dead time, cross-validated 3.52,
     over the second stage's 4.14; once coasting was adopted (1.08) the dead time still paid
     against nothing (3.8 without it), but the stage in its place scored 1.06, cross-validated
-    1.14 against 1.16 (and a lower BIC), and named nothing.
+    1.14 against 1.16 (and a lower BIC), and named nothing (before the thirty-second
+    session's fixes of the held-out score; now t100 mismatch 912: a Coulomb torque named
+    first, a viscous torque in its place once the second stage and ``k_q`` were widened).
     A rival must cross-validate at least as well as ``name`` (a widening or second stage
     excepted, as in ``_choose``): the round already broke the tie by the BIC, and breaking it
     again on another base flips on noise (t100 mismatch 715, a hidden Coulomb torque and slew
@@ -1659,9 +1663,9 @@ def search(
         )
         added = [n for n in added if n not in gone]
         # Without the start's effect the base is another, as after a base change: a choice
-        # made beside it is made again (t200 mismatch 764: a viscous torque named over the
-        # idle-current law the thruster has, while a superfluous dead time stood in for its
-        # second ESC stage).
+        # made beside it is made again (t200 mismatch 764 before the thirty-second session's
+        # fixes of the held-out score: a viscous torque named over the idle-current law the
+        # thruster has, while a superfluous dead time stood in for its second ESC stage).
         current, origin, ranges, added, swaps, lines = _choices_again(
             added, passed_over, current, origin, ranges, added, config, data,
             workers, progress, say,
