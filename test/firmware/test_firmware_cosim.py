@@ -151,9 +151,9 @@ def _timeline(rig: Rig, since: float) -> str:
     return "\n".join(f"{t:.4f} s {what}" for t, what in sorted(events))
 
 
-# A valid command frame was not applied, rarely (twice in about 80 module runs: a 1400 us
-# command behind a damaged stream, a 1620 us one behind a truncated frame), on an unloaded
-# machine too; the cause is not found (docs/development.md). The checks keep their message
+# A valid command frame was not applied, rarely (a 1620 us one behind a truncated frame in
+# CI; a 1400 us one behind a damaged stream in two runs side by side of 58 here); the cause
+# is not found (docs/development.md). The checks keep their message
 # with what the bridge received and the servo did; one retry keeps a rare miss from failing
 # CI while a decoder that drops frames fails every time.
 RARE_MISS = pytest.mark.flaky(reruns=1)
