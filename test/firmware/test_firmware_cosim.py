@@ -136,8 +136,8 @@ class Rig:
 
 
 def _timeline(rig: Rig, since: float) -> str:
-    """What the bridge received and the servo did from ``since`` on (virtual time), for the
-    message of a check that a command was applied."""
+    """What the bridge received, the servo did and the telemetry said it applied from
+    ``since`` on (virtual time), for the message of a check that a command was applied."""
     events = [
         (c.t_received, f"received {c.data.hex()}{' (noise)' if c.noise else ''}")
         for c in rig.bridge.chunks()
@@ -148,15 +148,12 @@ def _timeline(rig: Rig, since: float) -> str:
         if round(p.width_us) != last:
             last = round(p.width_us)
             events.append((p.t, f"pulse {last} us"))
+    echoed = None
+    for t, frame in rig.telemetry(since=since):
+        if frame.pwm_us != echoed:
+            echoed = frame.pwm_us
+            events.append((t, f"telemetry says {echoed} us (status {frame.status:#x})"))
     return "\n".join(f"{t:.4f} s {what}" for t, what in sorted(events))
-
-
-# A valid command frame was not applied, rarely (a 1620 us one behind a truncated frame in
-# CI; a 1400 us one behind a damaged stream in two runs side by side of 58 here); the cause
-# is not found (docs/development.md). The checks keep their message
-# with what the bridge received and the servo did; one retry keeps a rare miss from failing
-# CI while a decoder that drops frames fails every time.
-RARE_MISS = pytest.mark.flaky(reruns=1)
 
 
 def _commander(rig: Rig, stop: threading.Event) -> None:
@@ -229,6 +226,26 @@ def test_a_version_query_is_answered(rig: Rig) -> None:
     assert frame.message == VersionFrame(1, 0, 0)
 
 
+def test_every_query_of_a_continuous_stream_is_answered(rig: Rig) -> None:
+    """2000 version queries back to back, each behind 0-39 zero bytes (4.9 s of wire time):
+    every one is answered. The firmware switches its transmit interrupt on and off (UCSR0B)
+    at each reply while host bytes keep arriving, and avr8js dropped a received byte whose
+    interrupt was pending at such a write (4 and 8 of 2000 queries unanswered; the rare
+    command that never pulsed in this file's tests). The runner corrects it
+    (``keepUnreadByte`` in firmware/cosim/runner.js)."""
+    rig.set_target(None)
+    rig.wait_virtual(0.1)
+    start = rig.bridge.virtual_time
+    pads = np.random.default_rng(4).integers(0, 40, 2000)
+    queries = [bytes(int(n)) + encode_version_query(900 + k) for k, n in enumerate(pads)]
+    rig.send(b"".join(queries))
+    rig.chunk(queries[-1])
+    rig.wait_virtual(0.1)
+    replies = [f for f in list(rig.bridge.frames) if f.t >= start]
+    versions = [f for f in replies if isinstance(f.frame.message, VersionFrame)]
+    assert len(versions) == len(queries), f"{len(versions)} replies to {len(queries)} queries"
+
+
 def test_telemetry_runs_at_the_configured_rate(rig: Rig) -> None:
     start = rig.bridge.virtual_time
     rig.wait_virtual(2.0)
@@ -277,7 +294,8 @@ def test_a_command_step_reaches_the_servo_within_one_frame_period(rig: Rig) -> N
         data = rig.command(pulse)
         arrived = rig.chunk(data).t_received
         rig.wait_virtual(0.06)
-        first = next(p for p in rig.pulses(since=arrived) if abs(p.width_us - pulse) <= 0.5)
+        first = next((p for p in rig.pulses(since=arrived) if abs(p.width_us - pulse) <= 0.5), None)
+        assert first is not None, f"{pulse} us never pulsed\n{_timeline(rig, arrived - 0.1)}"
         echo = next(f for t, f in rig.telemetry(since=arrived + WAKE_S))
         latencies.append(first.t - arrived)
         assert echo.pwm_us == pulse
@@ -314,7 +332,6 @@ def test_the_bridge_watchdog_gives_neutral_when_commands_stop(rig: Rig) -> None:
     assert all(f.pwm_us == 1500 for _, f in late)
 
 
-@RARE_MISS
 def test_noise_and_damaged_frames_on_the_host_link_are_not_commands(rig: Rig) -> None:
     rig.hold(1600)
     rig.wait_virtual(0.2)
@@ -338,7 +355,6 @@ def test_noise_and_damaged_frames_on_the_host_link_are_not_commands(rig: Rig) ->
     )
 
 
-@RARE_MISS
 def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig) -> None:
     """Valid commands behind truncated, corrupted, noisy and falsely synced bytes: the pulses
     the firmware applies are the commands the host's FrameDecoder finds in the same stream."""
