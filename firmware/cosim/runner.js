@@ -27,6 +27,8 @@ const DDRD = 0x2a;
 const SERVO_PIN = 1; // PB1
 const ESC_PIN = 2; // PD2
 const SMCR = 0x53;
+const UCSRA_RXC = 0x80; // USART0: a received byte is unread
+const UCSRB_RXEN = 0x10; // USART0: the receiver is on
 const SLEEP = 0x9588;
 const RJMP_SELF = 0xcfff; // rjmp .-2: a loop that never ends
 
@@ -135,6 +137,23 @@ let hung = false;
 function vnow() { return vbase + m.cpu.cycles; }
 function seconds(cycles) { return cycles / FREQ_HZ; }
 
+// avr8js clears a received byte's RXC flag on every UCSR0B write that leaves the receiver on.
+// The hardware drops unread data only when the receiver is switched off (ATmega328P datasheet,
+// UCSRnA: RXCn). The firmware writes UCSR0B whenever a telemetry burst starts or ends (UDRIE0),
+// so a host byte that completed just then never raised its interrupt and the next overwrote
+// it (4 and 8 of 2000 queries in a continuous stream went unanswered; test_firmware_cosim).
+function keepUnreadByte(cpu, usart) {
+  const { UCSRA, UCSRB } = usart0Config;
+  const write = cpu.writeHooks[UCSRB];
+  cpu.writeHooks[UCSRB] = (value, oldValue, ...rest) => {
+    const unread = cpu.data[UCSRA] & UCSRA_RXC;
+    const handled = write(value, oldValue, ...rest);
+    if (!(value & UCSRB_RXEN)) cpu.clearInterrupt(usart.RXC);
+    else if (unread) cpu.setInterruptFlag(usart.RXC);
+    return handled;
+  };
+}
+
 // A reset in avr8js only rewinds the PC; the real chip also resets every peripheral, so a new
 // machine is built instead (flash, EEPROM and the outside world are kept).
 function createMachine(cause) {
@@ -164,6 +183,7 @@ function createMachine(cause) {
     txBytes.push(b);
   };
   machine.usart.onRxComplete = onHostByteReceived;
+  keepUnreadByte(cpu, machine.usart);
   machine.portB.addListener(onServoPin);
   machine.portD.addListener((value) => esc.onAvrPin(value));
   machine.portD.setPin(ESC_PIN, true); // pull-up: the idle wire is high

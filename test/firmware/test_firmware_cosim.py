@@ -54,13 +54,20 @@ class Rig:
     target: int | None = None
     seq: int = 0
     lock: threading.Lock = field(default_factory=threading.Lock)
+    sent_after: int = -1
+    """The last chunk the bridge had before the test's last write (``chunk`` looks past it)."""
+
+    def _mark(self) -> None:
+        self.sent_after = max((c.chunk_id for c in self.bridge.chunks()), default=-1)
 
     def send(self, data: bytes) -> None:
         with self.lock:
+            self._mark()
             self.port.write(data)
 
     def command(self, pulse_us: int, timeout_ms: int = 500) -> bytes:
         with self.lock:
+            self._mark()
             data = encode_command(CommandFrame(pulse_us, timeout_ms), self.seq)
             self.seq = (self.seq + 1) % 65536
             self.port.write(data)
@@ -108,20 +115,45 @@ class Rig:
         return [p for p in list(self.bridge.pulses) if p.t >= since]
 
     def chunk(self, data: bytes) -> cosim.HostChunk:
-        """The last chunk that ends with these bytes, once the bridge received it: its
-        ``t_received`` is when their last byte arrived. (The co-simulation reads the pty as a
-        stream: bytes written just before, such as the commander's last repeat, can come out in
-        the same read.)"""
+        """The chunk of the test's last write, which ends with these bytes, once the bridge
+        received it: its ``t_received`` is when their last byte arrived. (The co-simulation
+        reads the pty as a stream: bytes written just before, such as the commander's last
+        repeat, can come out in the same read. A test run again sends the same bytes again.)"""
         found: list[cosim.HostChunk] = []
 
         def received() -> bool:
-            found[:] = [c for c in self.bridge.chunks() if c.data.endswith(data) and c.t_received]
+            found[:] = [
+                c
+                for c in self.bridge.chunks()
+                if c.chunk_id > self.sent_after and c.data.endswith(data) and c.t_received
+            ]
             return bool(found)
 
         # Wall-clock bounds are generous: what is checked is in virtual time, and a loaded machine
         # runs the co-simulation below real time (a 3 s bound failed once in a fresh clone).
         assert self.wait(received, WAIT_S), f"{data.hex()} never reached the bridge"
         return found[-1]
+
+
+def _timeline(rig: Rig, since: float) -> str:
+    """What the bridge received, the servo did and the telemetry said it applied from
+    ``since`` on (virtual time), for the message of a check that a command was applied."""
+    events = [
+        (c.t_received, f"received {c.data.hex()}{' (noise)' if c.noise else ''}")
+        for c in rig.bridge.chunks()
+        if c.t_received and c.t_received >= since
+    ]
+    last = None
+    for p in rig.pulses(since=since):
+        if round(p.width_us) != last:
+            last = round(p.width_us)
+            events.append((p.t, f"pulse {last} us"))
+    echoed = None
+    for t, frame in rig.telemetry(since=since):
+        if frame.pwm_us != echoed:
+            echoed = frame.pwm_us
+            events.append((t, f"telemetry says {echoed} us (status {frame.status:#x})"))
+    return "\n".join(f"{t:.4f} s {what}" for t, what in sorted(events))
 
 
 def _commander(rig: Rig, stop: threading.Event) -> None:
@@ -194,6 +226,26 @@ def test_a_version_query_is_answered(rig: Rig) -> None:
     assert frame.message == VersionFrame(1, 0, 0)
 
 
+def test_every_query_of_a_continuous_stream_is_answered(rig: Rig) -> None:
+    """2000 version queries back to back, each behind 0-39 zero bytes (4.9 s of wire time):
+    every one is answered. The firmware switches its transmit interrupt on and off (UCSR0B)
+    at each reply while host bytes keep arriving, and avr8js dropped a received byte whose
+    interrupt was pending at such a write (4 and 8 of 2000 queries unanswered; the rare
+    command that never pulsed in this file's tests). The runner corrects it
+    (``keepUnreadByte`` in firmware/cosim/runner.js)."""
+    rig.set_target(None)
+    rig.wait_virtual(0.1)
+    start = rig.bridge.virtual_time
+    pads = np.random.default_rng(4).integers(0, 40, 2000)
+    queries = [bytes(int(n)) + encode_version_query(900 + k) for k, n in enumerate(pads)]
+    rig.send(b"".join(queries))
+    rig.chunk(queries[-1])
+    rig.wait_virtual(0.1)
+    replies = [f for f in list(rig.bridge.frames) if f.t >= start]
+    versions = [f for f in replies if isinstance(f.frame.message, VersionFrame)]
+    assert len(versions) == len(queries), f"{len(versions)} replies to {len(queries)} queries"
+
+
 def test_telemetry_runs_at_the_configured_rate(rig: Rig) -> None:
     start = rig.bridge.virtual_time
     rig.wait_virtual(2.0)
@@ -242,7 +294,8 @@ def test_a_command_step_reaches_the_servo_within_one_frame_period(rig: Rig) -> N
         data = rig.command(pulse)
         arrived = rig.chunk(data).t_received
         rig.wait_virtual(0.06)
-        first = next(p for p in rig.pulses(since=arrived) if abs(p.width_us - pulse) <= 0.5)
+        first = next((p for p in rig.pulses(since=arrived) if abs(p.width_us - pulse) <= 0.5), None)
+        assert first is not None, f"{pulse} us never pulsed\n{_timeline(rig, arrived - 0.1)}"
         echo = next(f for t, f in rig.telemetry(since=arrived + WAKE_S))
         latencies.append(first.t - arrived)
         assert echo.pwm_us == pulse
@@ -297,7 +350,9 @@ def test_noise_and_damaged_frames_on_the_host_link_are_not_commands(rig: Rig) ->
     assert any(c.noise and c.t_received for c in rig.bridge.chunks())
     widths = {round(p.width_us) for p in rig.pulses(since=start)}
     assert widths <= {1600, 1620}, widths
-    assert all(abs(p.width_us - 1620) <= 0.5 for p in rig.pulses(since=arrived + SERVO_PERIOD_S))
+    assert all(abs(p.width_us - 1620) <= 0.5 for p in rig.pulses(since=arrived + SERVO_PERIOD_S)), (
+        f"1620 us arrived at {arrived:.4f} s\n{_timeline(rig, start)}"
+    )
 
 
 def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig) -> None:
@@ -341,7 +396,7 @@ def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig
     changes = [w for a, w in itertools.pairwise(applied) if w != a]
     assert len(expected) >= 15, "most valid frames survive their damaged prefix"
     assert all(pulse < 1850 for pulse in expected)
-    assert changes == expected, (changes, expected)
+    assert changes == expected, f"{changes}\n{expected}\n{_timeline(rig, start)}"
 
 
 def _flagged_window(rig: Rig, fault: str, n: int = 1) -> tuple[cosim.ServedFrame, list]:
