@@ -536,11 +536,11 @@ def test_a_candidate_whose_short_refit_is_unfinished_is_judged_after_a_full_one(
 
 
 def test_two_effects_that_pass_only_together_are_named(tmp_path: Path) -> None:
-    """Exact-base 267 (60 s; a 0.78 s ESC lag and a 0.11 deadband hidden, a coasting rotor):
-    once coasting is adopted (held-out 10.2 -> 5.2), each effect alone makes the held-out
-    error worse (the lag 40.8, the deadband 120) while the two together fit to 1.05; the
-    pair lets the lag in and the next round names the deadband. report.md and details.json
-    show the pairs fitted."""
+    """Exact-base 267 (60 s; a 0.78 s ESC lag and a 0.11 deadband hidden): the first round
+    adopts coasting (held-out 10.2 -> 5.2), which the unit lacks, as a stand-in; then each
+    effect alone makes the held-out error worse (the lag 40.8, the deadband 120) while the
+    two together fit to 1.05; the pair lets the lag in and the next round names the deadband.
+    report.md and details.json show the pairs fitted."""
     case = make_case(("deadband", "esc_lag"), 267, duration_s=60.0)
     result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert result.added == ("esc_lag", "deadband")

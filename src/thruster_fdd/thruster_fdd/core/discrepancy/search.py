@@ -869,8 +869,8 @@ def _paired(
     ``MIN_GAIN`` of the excess on the fit samples. The lead of the best pair that passes is
     accepted; the next round finds its partner by the usual rules. Two effects can each make
     the held-out error worse alone (exact-base 267, a hidden 0.78 s ESC lag and a deadband on
-    a 60 s trace, coasting adopted: the lag alone 5.2 -> 40.8, the deadband alone 120, the two
-    together 1.05).
+    a 60 s trace, after coasting was adopted as a stand-in: the lag alone 5.2 -> 40.8, the
+    deadband alone 120, the two together 1.05).
     """
     singles = sorted(
         (
