@@ -388,28 +388,6 @@ def reported(sim: dict[str, np.ndarray], data: Measured) -> dict[str, np.ndarray
     return out
 
 
-def weighted_residuals(sim: dict[str, np.ndarray], data: Measured) -> dict[str, np.ndarray]:
-    """Measured minus simulated, per channel, shape (n,), with the floor treated as censoring.
-
-    Where the measured speed is 0 under a reporting floor, the speed residual is the model's
-    excess over the floor (0 if the model is under it too) and, if the floor also zeroes the
-    current, the current residual is 0. Continuous in the parameters, unlike a hard floor.
-    """
-    res = {c: data.channel(c) - sim[c] for c in CHANNELS}
-    if data.rpm_floor > 0.0:
-        censored = data.rpm == 0.0
-        excess = np.maximum(np.abs(sim["rpm"]) - data.rpm_floor, 0.0) * np.sign(sim["rpm"])
-        res["rpm"] = np.where(censored, -excess, res["rpm"])
-        if data.floor_zeroes_current:
-            res["current"] = np.where(censored, 0.0, res["current"])
-    return res
-
-
-def _r2(y: np.ndarray, e: np.ndarray) -> float:
-    ss = float(np.sum((y - y.mean()) ** 2))
-    return 1.0 - float(np.sum(e**2)) / ss if ss > 0.0 else math.nan
-
-
 def _uncensored(data: Measured) -> dict[str, np.ndarray]:
     """Per channel, the samples the reporting floor leaves informative, shape ``(n,)`` bool:
     a reported 0 rpm says only "below the floor" (and 0 A too where the floor zeroes the
@@ -420,6 +398,27 @@ def _uncensored(data: Measured) -> dict[str, np.ndarray]:
         "current": ~below if data.floor_zeroes_current else np.ones(len(data.t), bool),
         "voltage": np.ones(len(data.t), bool),
     }
+
+
+def weighted_residuals(sim: dict[str, np.ndarray], data: Measured) -> dict[str, np.ndarray]:
+    """Measured minus simulated, per channel, shape (n,), with the floor treated as censoring.
+
+    Where the measured speed is 0 under a reporting floor, the speed residual is the model's
+    excess over the floor (0 if the model is under it too) and, if the floor also zeroes the
+    current, the current residual is 0. Continuous in the parameters, unlike a hard floor.
+    """
+    res = {c: data.channel(c) - sim[c] for c in CHANNELS}
+    if data.rpm_floor > 0.0:
+        seen = _uncensored(data)
+        excess = np.maximum(np.abs(sim["rpm"]) - data.rpm_floor, 0.0) * np.sign(sim["rpm"])
+        res["rpm"] = np.where(seen["rpm"], res["rpm"], -excess)
+        res["current"] = np.where(seen["current"], res["current"], 0.0)
+    return res
+
+
+def _r2(y: np.ndarray, e: np.ndarray) -> float:
+    ss = float(np.sum((y - y.mean()) ** 2))
+    return 1.0 - float(np.sum(e**2)) / ss if ss > 0.0 else math.nan
 
 
 def gap(sim: dict[str, np.ndarray], data: Measured, mask: np.ndarray | None = None) -> Gap:
