@@ -18,11 +18,11 @@ import numpy as np
 import torch
 
 from thruster_fdd.core.diagnosis.model import ClassifierModel
-from thruster_fdd.core.diagnosis.offline import check_pair
 from thruster_fdd.core.diagnosis.stream import DiagnosisStream
 from thruster_fdd.core.nominal.residuals import ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
-from thruster_fdd.core.sim.scenario import run_scenario
+from thruster_fdd_shore.core.diagnosis.offline import check_pair
+from thruster_fdd_shore.core.sim.scenario import run_scenario
 
 
 def percentiles_us(samples: list[float]) -> tuple[float, float]:

@@ -18,9 +18,9 @@ import resource
 import tempfile
 import time
 
-from thruster_fdd.core.discrepancy.cases import make_case, make_mismatch_case
-from thruster_fdd.core.discrepancy.report import write_report
-from thruster_fdd.core.discrepancy.search import run_workflow
+from thruster_fdd_shore.core.discrepancy.cases import make_case, make_mismatch_case
+from thruster_fdd_shore.core.discrepancy.report import write_report
+from thruster_fdd_shore.core.discrepancy.search import run_workflow
 
 
 def main() -> None:

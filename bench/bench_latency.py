@@ -46,9 +46,15 @@ def run_once(
     """Run one configuration; latencies in ms by what ("published", "received") and stage."""
     env = dict(os.environ)
     if source:
-        env["PYTHONPATH"] = f"{source}/src/thruster_fdd:{env.get('PYTHONPATH', '')}"
+        env["PYTHONPATH"] = ":".join(
+            [
+                f"{source}/src/thruster_fdd",
+                f"{source}/src/thruster_fdd_shore",
+                env.get("PYTHONPATH", ""),
+            ]
+        )
     up = subprocess.Popen(
-        [sys.executable, "-m", "thruster_fdd.cli", "up", "--thrusters", str(thrusters),
+        [sys.executable, "-m", "thruster_fdd_shore.cli", "up", "--thrusters", str(thrusters),
          "--rate", str(rate), "--no-record", "--print-period", "1000", "--signal", "multilevel",
          "--duration", str(warmup + seconds + 5)],
         stdout=subprocess.DEVNULL,

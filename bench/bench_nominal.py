@@ -17,9 +17,9 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from thruster_fdd.core.nominal.evaluation import ProtocolConfig, protocol_data
 from thruster_fdd.core.nominal.runtime import NominalModel
-from thruster_fdd.core.nominal.training import DEFAULT_SPECS, default_config, train_model
+from thruster_fdd_shore.core.nominal.evaluation import ProtocolConfig, protocol_data
+from thruster_fdd_shore.core.nominal.training import DEFAULT_SPECS, default_config, train_model
 
 
 def percentiles_us(samples: list[float]) -> tuple[float, float]:

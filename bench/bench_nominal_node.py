@@ -25,7 +25,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from thruster_fdd_msgs.msg import EscTelemetry
 
 from thruster_fdd.core.artifact import default_models_dir
-from thruster_fdd.core.sim.scenario import run_scenario
+from thruster_fdd_shore.core.sim.scenario import run_scenario
 
 
 def _rss_mb(pid: int) -> float:

@@ -10,9 +10,9 @@ import argparse
 import statistics
 import time
 
-from thruster_fdd.core.sim.config import load_config
-from thruster_fdd.core.sim.physics import simulate
-from thruster_fdd.core.sim.signals import make_signal
+from thruster_fdd_shore.core.sim.config import load_config
+from thruster_fdd_shore.core.sim.physics import simulate
+from thruster_fdd_shore.core.sim.signals import make_signal
 
 
 def speed(preset: str, rate_hz: float, duration_s: float, repeats: int) -> float:

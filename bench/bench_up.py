@@ -42,7 +42,7 @@ PARTS = (
     ("thruster_fdd.nodes.container command_player", "command players", "sim"),
     ("thruster_fdd.nodes.container", "models", "vehicle"),
     ("thruster_fdd.nodes.esc_driver", "drivers", "vehicle"),
-    ("thruster_fdd.nodes.command_player", "command players", "sim"),
+    ("thruster_fdd_shore.nodes.command_player", "command players", "sim"),
     (" emulate ", "emulators", "sim"),
 )
 
@@ -84,9 +84,15 @@ def run_once(
     out_dir = tempfile.mkdtemp(prefix="bench_up_")
     env = dict(os.environ)
     if source:
-        env["PYTHONPATH"] = f"{source}/src/thruster_fdd:{env.get('PYTHONPATH', '')}"
+        env["PYTHONPATH"] = ":".join(
+            [
+                f"{source}/src/thruster_fdd",
+                f"{source}/src/thruster_fdd_shore",
+                env.get("PYTHONPATH", ""),
+            ]
+        )
     proc = subprocess.Popen(
-        [sys.executable, "-m", "thruster_fdd.cli", "up", "--thrusters", str(thrusters),
+        [sys.executable, "-m", "thruster_fdd_shore.cli", "up", "--thrusters", str(thrusters),
          "--rate", str(rate), "--duration", str(warmup + seconds + 5), "--print-period", "1000",
          "--record-dir", out_dir],
         stdout=subprocess.DEVNULL,

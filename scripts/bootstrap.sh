@@ -3,7 +3,7 @@
 # 1. .venv with Python 3.11 and every pinned wheel of requirements.txt (skipped when unchanged);
 # 2. the two fixes the ROS wheels need (stale include paths in their CMake exports; the library
 #    path is handled by ros-wheels-bootstrapper's .pth on its own);
-# 3. colcon build of thruster_fdd_msgs and thruster_fdd (skipped when their sources are unchanged),
+# 3. colcon build of thruster_fdd_msgs, thruster_fdd and thruster_fdd_shore (skipped when their sources are unchanged),
 #    and of the ROS launch system (launch, launch_ros, composition_interfaces: no wheels exist)
 #    from ../shared/vendor/ros2-launch-jazzy when that folder exists (copied to .vendor/ first:
 #    colcon writes beside the sources); without it the launch file's test is skipped;
@@ -55,12 +55,12 @@ build_inputs=(
     "$TFDD_ROOT"/thruster_fdd_msgs/package.xml
     "$TFDD_ROOT"/thruster_fdd_msgs/CMakeLists.txt
     "$TFDD_ROOT"/thruster_fdd_msgs/msg/*.msg
-    "$TFDD_ROOT"/src/thruster_fdd/package.xml
-    "$TFDD_ROOT"/src/thruster_fdd/setup.py
-    "$TFDD_ROOT"/src/thruster_fdd/setup.cfg
-    "$TFDD_ROOT"/src/thruster_fdd/bin/*
-    "$TFDD_ROOT"/src/thruster_fdd/config/*
-    "$TFDD_ROOT"/src/thruster_fdd/launch/*
+    "$TFDD_ROOT"/src/*/package.xml
+    "$TFDD_ROOT"/src/*/setup.py
+    "$TFDD_ROOT"/src/*/setup.cfg
+    "$TFDD_ROOT"/src/*/bin/*
+    "$TFDD_ROOT"/src/*/config/*
+    "$TFDD_ROOT"/src/*/launch/*
     "$TFDD_VENDOR"/*/package.xml
 )
 shopt -u nullglob
@@ -80,7 +80,7 @@ if [ ! -f "$build_stamp" ]; then
     # Builds before the node executables moved to lib/thruster_fdd generated a console script
     # where colcon now links bin/thruster-fdd; colcon cannot link over a file.
     stale="$TFDD_ROOT/install/thruster_fdd/bin/thruster-fdd"
-    if [ -f "$stale" ] && [ ! -L "$stale" ]; then rm -f "$stale"; fi
+    if [ -e "$stale" ] || [ -L "$stale" ]; then rm -f "$stale"; fi
     mkdir -p "$TFDD_ROOT/log"
     (cd "$TFDD_ROOT" && colcon build --symlink-install --base-paths "${base_paths[@]}" \
         --event-handlers console_cohesion- summary+ >"$TFDD_ROOT/log/colcon-last.txt" 2>&1 \

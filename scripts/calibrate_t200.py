@@ -22,14 +22,23 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from thruster_fdd.core.sim.config import Measurement, SimConfig, ThrusterParams, dump_config
-from thruster_fdd.core.sim.effects import Deadband, EscLag
-from thruster_fdd.core.sim.plant import RAD_S_TO_RPM
-from thruster_fdd.core.sim.steady import steady_state
+from thruster_fdd_shore.core.sim.config import Measurement, SimConfig, ThrusterParams, dump_config
+from thruster_fdd_shore.core.sim.effects import Deadband, EscLag
+from thruster_fdd_shore.core.sim.plant import RAD_S_TO_RPM
+from thruster_fdd_shore.core.sim.steady import steady_state
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "t200"
-DEFAULT_OUT = REPO / "src" / "thruster_fdd" / "thruster_fdd" / "core" / "presets" / "t200.yaml"
+DEFAULT_OUT = (
+    REPO
+    / "src"
+    / "thruster_fdd_shore"
+    / "thruster_fdd_shore"
+    / "core"
+    / "sim"
+    / "presets"
+    / "t200.yaml"
+)
 DEFAULT_TABLE = REPO / "docs" / "t200_fit.md"
 KGF_TO_N = 9.80665
 

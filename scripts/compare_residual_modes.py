@@ -25,9 +25,9 @@ import json
 import subprocess
 from pathlib import Path
 
-from thruster_fdd.core.diagnosis.evaluation import WindowEvalConfig, window_accuracy
 from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.nominal.runtime import NominalModel
+from thruster_fdd_shore.core.diagnosis.evaluation import WindowEvalConfig, window_accuracy
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -43,7 +43,8 @@ import numpy as np
 from scipy.stats import beta
 from tqdm import tqdm
 
-from thruster_fdd.core.discrepancy.cases import (
+from thruster_fdd.core.traces.data import Trace
+from thruster_fdd_shore.core.discrepancy.cases import (
     MISMATCH_DURATION_S,
     MISMATCH_HIDDEN,
     MISMATCH_PAIRS,
@@ -54,13 +55,12 @@ from thruster_fdd.core.discrepancy.cases import (
     make_case,
     make_mismatch_case,
 )
-from thruster_fdd.core.discrepancy.fit import without_effects
-from thruster_fdd.core.discrepancy.measure import CHANNELS, Measured, simulate_model
-from thruster_fdd.core.discrepancy.report import FRICTION_UNITS, friction_currents
-from thruster_fdd.core.discrepancy.search import SAME_CHOICE, run_workflow
-from thruster_fdd.core.sim.config import Measurement, SimConfig
-from thruster_fdd.core.sim.physics import simulate
-from thruster_fdd.core.traces.data import Trace
+from thruster_fdd_shore.core.discrepancy.fit import without_effects
+from thruster_fdd_shore.core.discrepancy.measure import CHANNELS, Measured, simulate_model
+from thruster_fdd_shore.core.discrepancy.report import FRICTION_UNITS, friction_currents
+from thruster_fdd_shore.core.discrepancy.search import SAME_CHOICE, run_workflow
+from thruster_fdd_shore.core.sim.config import Measurement, SimConfig
+from thruster_fdd_shore.core.sim.physics import simulate
 
 PAIRS = (
     ("dead_time", "current_limit"),

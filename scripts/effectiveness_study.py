@@ -39,16 +39,15 @@ from pathlib import Path
 import numpy as np
 
 from thruster_fdd.core.atomic import replaced_file, write_text
-from thruster_fdd.core.diagnosis.effectiveness import (
-    EffectivenessEstimator,
-    ThrustReference,
-)
-from thruster_fdd.core.sim.config import SimConfig, load_config
-from thruster_fdd.core.sim.effects import make_effect
-from thruster_fdd.core.sim.physics import ThrusterSimulator, simulate
-from thruster_fdd.core.sim.plant import SEVERITY_SWEEP, ConditionSpec, severity_spec
-from thruster_fdd.core.sim.signals import make_signal
+from thruster_fdd.core.diagnosis.effectiveness import EffectivenessEstimator
+from thruster_fdd.core.diagnosis.reference import ThrustReference
 from thruster_fdd.core.traces.data import Trace
+from thruster_fdd_shore.core.reference import reference_of
+from thruster_fdd_shore.core.sim.config import SimConfig, load_config
+from thruster_fdd_shore.core.sim.effects import make_effect
+from thruster_fdd_shore.core.sim.physics import ThrusterSimulator, simulate
+from thruster_fdd_shore.core.sim.plant import SEVERITY_SWEEP, ConditionSpec, severity_spec
+from thruster_fdd_shore.core.sim.signals import make_signal
 
 RATE_HZ = 10.0
 """Sample rate of the streamed telemetry (the nominal model's, what the health node sees), Hz."""
@@ -281,7 +280,7 @@ def t200_check(data_dir: Path) -> dict[str, float]:
     # The sheets are steady-state rows held for a while each: stream them at 10 Hz.
     t = np.cumsum(np.maximum(dt, 1.0 / RATE_HZ))
     trace = replace(trace, t=t)
-    estimator = EffectivenessEstimator(ThrustReference(load_config("t200")))
+    estimator = EffectivenessEstimator(reference_of(load_config("t200")))
     return summary([stream(estimator, trace, None, 120.0)])
 
 
@@ -364,7 +363,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 0
     config = load_config(args.preset)
-    reference = ThrustReference(config)
+    reference = reference_of(config)
     units = {"": config}
     if args.structural:
         units |= {f" ({name})": c for name, c in structural_variants(args.preset).items()}

@@ -32,7 +32,7 @@ from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.traces.mcap_io import DECODE_ERRORS, message_definition, read_trace_mcap
 from thruster_fdd.core.traces.mcap_read import McapChannel, ros2_decoder
 from thruster_fdd.core.traces.recording import read_recovered
-from thruster_fdd.core.traces.replay_check import load_bag
+from thruster_fdd_shore.core.traces.replay_check import load_bag
 
 TESTS = Path(__file__).resolve().parents[1] / "test" / "core" / "test_adversarial_files.py"
 

@@ -16,8 +16,8 @@ python - "$data" <<'PY'
 import sys
 from pathlib import Path
 
-from thruster_fdd.core.diagnosis.evaluation import training_traces
-from thruster_fdd.core.traces.csv_io import write_trace_csv
+from thruster_fdd_shore.core.diagnosis.evaluation import training_traces
+from thruster_fdd_shore.core.traces.csv_io import write_trace_csv
 
 for name, trace in training_traces():
     write_trace_csv(trace, Path(sys.argv[1]) / f"{name}.csv")

@@ -21,10 +21,10 @@ import numpy as np
 
 from thruster_fdd.core.artifact import default_models_dir
 from thruster_fdd.core.diagnosis.model import ClassifierModel
-from thruster_fdd.core.diagnosis.offline import first_fault, trace_decisions
 from thruster_fdd.core.labels import FAULT_CLASSES
 from thruster_fdd.core.nominal.runtime import NominalModel
-from thruster_fdd.core.sim.scenario import run_scenario
+from thruster_fdd_shore.core.diagnosis.offline import first_fault, trace_decisions
+from thruster_fdd_shore.core.sim.scenario import run_scenario
 
 
 def main(argv: list[str] | None = None) -> int:

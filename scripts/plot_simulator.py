@@ -21,11 +21,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from thruster_fdd.core.sim.config import Measurement, load_config
-from thruster_fdd.core.sim.metrics import hysteresis_loop_area
-from thruster_fdd.core.sim.physics import simulate
-from thruster_fdd.core.sim.signals import make_signal
-from thruster_fdd.core.sim.steady import steady_state
+from thruster_fdd_shore.core.sim.config import Measurement, load_config
+from thruster_fdd_shore.core.sim.metrics import hysteresis_loop_area
+from thruster_fdd_shore.core.sim.physics import simulate
+from thruster_fdd_shore.core.sim.signals import make_signal
+from thruster_fdd_shore.core.sim.steady import steady_state
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -25,8 +25,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from calibrate_t200 import DEFAULT_DATA, load_sheets
 
-from thruster_fdd.core.traces.csv_io import write_trace_csv
 from thruster_fdd.core.traces.data import Trace
+from thruster_fdd_shore.core.traces.csv_io import write_trace_csv
 
 SETTLE_S = 1.5
 LOGGED_S = 2.0

@@ -47,7 +47,7 @@ def quiet_t100() -> object:
     the link's or the bridge's doing."""
     from dataclasses import replace
 
-    from thruster_fdd.core.sim.config import load_config
+    from thruster_fdd_shore.core.sim.config import load_config
 
     config = load_config("t100")
     return replace(config, measurement=replace(config.measurement, outlier_prob=0.0))
@@ -56,7 +56,7 @@ def quiet_t100() -> object:
 @pytest.fixture(scope="session")
 def firmware_images(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     """The bridge firmware built from scratch for this run, ``{variant: FirmwareImage}``."""
-    from thruster_fdd.core.bridge.firmware_build import build_firmware
+    from thruster_fdd_shore.core.bridge.firmware_build import build_firmware
 
     out = tmp_path_factory.mktemp("firmware")
     return {image.variant: image for image in build_firmware(out)}

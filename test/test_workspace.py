@@ -1,4 +1,5 @@
-"""The workspace: core stays ROS-free, the CLI answers --help, messages carry their contract."""
+"""The workspace: the cores stay ROS-free, the vehicle package never imports the shore, the CLI
+answers --help, messages carry their contract."""
 
 from __future__ import annotations
 
@@ -9,10 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from thruster_fdd.cli import build_parser
+from thruster_fdd_shore.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
-CORE = ROOT / "src" / "thruster_fdd" / "thruster_fdd" / "core"
+VEHICLE = ROOT / "src" / "thruster_fdd"
+CORE = VEHICLE / "thruster_fdd" / "core"
+SHORE_CORE = ROOT / "src" / "thruster_fdd_shore" / "thruster_fdd_shore" / "core"
 FORBIDDEN_IN_CORE = (
     "rclpy",
     "rosidl_runtime_py",
@@ -32,6 +35,7 @@ SUBCOMMANDS = (
     "up",
     "record",
     "reload",
+    "reference",
     "emulate",
 )
 
@@ -61,9 +65,19 @@ def ros_imports_in(folder: Path) -> dict[str, list[str]]:
     return found
 
 
-def test_core_does_not_import_ros() -> None:
-    assert list(CORE.glob("*.py")), "core folder not found"
-    assert ros_imports_in(CORE) == {}
+def test_cores_do_not_import_ros() -> None:
+    for core in (CORE, SHORE_CORE):
+        assert list(core.glob("*.py")), f"{core} not found"
+        assert ros_imports_in(core) == {}
+
+
+def test_the_vehicle_package_never_imports_the_shore() -> None:
+    found = {
+        str(path.relative_to(VEHICLE)): sorted(bad)
+        for path in sorted(VEHICLE.rglob("*.py"))
+        if (bad := [n for n in _imports(path) if n.split(".")[0] == "thruster_fdd_shore"])
+    }
+    assert found == {}
 
 
 def test_core_check_catches_a_ros_import(tmp_path: Path) -> None:
@@ -154,13 +168,21 @@ def test_message_contract() -> None:
 
 
 @pytest.mark.parametrize(
-    "module", ["esc_driver", "command_player", "nominal_model", "recorder", "classifier", "health"]
+    "module",
+    [
+        "thruster_fdd.nodes.esc_driver",
+        "thruster_fdd.nodes.nominal_model",
+        "thruster_fdd.nodes.recorder",
+        "thruster_fdd.nodes.classifier",
+        "thruster_fdd.nodes.health",
+        "thruster_fdd_shore.nodes.command_player",
+    ],
 )
 def test_readme_lists_every_node_parameter_with_its_default(module: str) -> None:
     import importlib
 
     readme = (ROOT / "README.md").read_text()
-    node = importlib.import_module(f"thruster_fdd.nodes.{module}")
+    node = importlib.import_module(module)
     for name, default, _ in node.PARAMETERS:
         assert f"| `{name}` | `{default}` |" in readme, f"{module}.{name} missing from README"
 
@@ -170,8 +192,8 @@ def test_train_nominal_records_its_recordings(tmp_path: Path) -> None:
     import json
 
     from thruster_fdd.core.nominal.runtime import NominalModel
-    from thruster_fdd.core.sim.scenario import run_scenario
     from thruster_fdd.core.traces.mcap_io import write_trace_mcap
+    from thruster_fdd_shore.core.sim.scenario import run_scenario
 
     logs = tmp_path / "logs"
     trace = run_scenario("t100", "nominal_15v", signal="multilevel", duration_s=60, seed=3)

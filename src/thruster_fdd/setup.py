@@ -8,19 +8,17 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    package_data={"thruster_fdd.core.sim": ["presets/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.json")),
         (f"share/{PACKAGE}/launch", glob("launch/*.py")),
-        ("bin", ["bin/thruster-fdd"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="thruster_fdd maintainers",
     maintainer_email="thruster-fdd@example.org",
-    description="Onboard soft-fault detection and diagnosis for AUV thrusters.",
+    description="Onboard soft-fault detection and diagnosis for AUV thrusters: the vehicle side.",
     license="Apache-2.0",
     # Every node an executable in lib/thruster_fdd (setup.cfg): `ros2 run thruster_fdd esc_driver`.
     entry_points={
@@ -29,7 +27,6 @@ setup(
             "nominal_model = thruster_fdd.nodes.nominal_model:main",
             "classifier = thruster_fdd.nodes.classifier:main",
             "recorder = thruster_fdd.nodes.recorder:main",
-            "command_player = thruster_fdd.nodes.command_player:main",
             "container = thruster_fdd.nodes.container:main",
             "health = thruster_fdd.nodes.health:main",
         ],

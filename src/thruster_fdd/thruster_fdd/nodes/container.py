@@ -43,13 +43,33 @@ from thruster_fdd.nodes.common import (
     spin,
 )
 
-# Node kind -> (module, class) under thruster_fdd.nodes.
+# Node kind -> (module, class) of the vehicle's nodes. Any other node class is named
+# ``package.module:Class`` and hosted under its node name (the shore's command player is).
 KINDS = {
-    "esc_driver": ("esc_driver", "EscDriver"),
-    "command_player": ("command_player", "CommandPlayer"),
-    "nominal_model": ("nominal_model", "NominalModelNode"),
-    "classifier": ("classifier", "ClassifierNode"),
+    "esc_driver": ("thruster_fdd.nodes.esc_driver", "EscDriver"),
+    "nominal_model": ("thruster_fdd.nodes.nominal_model", "NominalModelNode"),
+    "classifier": ("thruster_fdd.nodes.classifier", "ClassifierNode"),
 }
+
+
+def node_class(kind: str) -> type:
+    """The node class of ``kind``: a name of ``KINDS`` or ``package.module:Class``.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is neither, or its module or class cannot be found.
+    """
+    if kind in KINDS:
+        module, cls_name = KINDS[kind]
+    else:
+        module, sep, cls_name = kind.partition(":")
+        if not sep or not module or not cls_name:
+            raise ValueError(f"{kind}: expected one of {sorted(KINDS)} or package.module:Class")
+    try:
+        return getattr(importlib.import_module(module), cls_name)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"{kind}: cannot load the node class ({exc})") from None
 
 
 def _value(text: str) -> object:
@@ -89,7 +109,12 @@ def main(argv: list[str] | None = None) -> None:
     """Create one node of each ``KIND`` per thruster and spin them all until Ctrl-C."""
     argv = sys.argv if argv is None else [sys.argv[0], *argv]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("kinds", nargs="+", choices=sorted(KINDS), metavar="KIND")
+    parser.add_argument(
+        "kinds",
+        nargs="+",
+        metavar="KIND",
+        help=f"node kinds: {', '.join(sorted(KINDS))}, or package.module:Class",
+    )
     parser.add_argument("--thrusters", nargs="+", required=True, metavar="ID")
     parser.add_argument(
         "--no-intra-process",
@@ -105,12 +130,9 @@ def main(argv: list[str] | None = None) -> None:
     try:
         params = parse_parameters(args.kinds, args.params)
         kind = executor_kind()
+        classes = {name: node_class(name) for name in args.kinds}
     except ValueError as exc:
         parser.error(str(exc))
-    classes = {}
-    for name in args.kinds:
-        module, cls_name = KINDS[name]
-        classes[name] = getattr(importlib.import_module(f"thruster_fdd.nodes.{module}"), cls_name)
     stop_with_parent()
     try:
         init_rclpy(argv)

@@ -18,9 +18,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from thruster_fdd_msgs.msg import Diagnosis, Residual, ThrusterHealth, VehicleHealth
 
-from thruster_fdd.core.diagnosis.effectiveness import ThrustReference
+from thruster_fdd.core.artifact import default_models_dir
 from thruster_fdd.core.diagnosis.health import HealthTracker, masks
-from thruster_fdd.core.sim.config import load_config
+from thruster_fdd.core.diagnosis.reference import ThrustReference
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     RELIABLE_10,
@@ -46,7 +46,12 @@ RESIDUAL_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("thruster_ids", ["t0"], "thrusters reported, in this order (bit i of the masks)"),
-    ("preset", "t100", "thruster type: simulator preset or configuration YAML of the reference"),
+    (
+        "reference",
+        "",
+        "folder of the thruster type's reference load curves (thruster-fdd reference); "
+        "empty: the models folder's reference/",
+    ),
     ("period_s", 1.0, "period of /thruster_fdd/health, s (also published on every change)"),
     ("stale_after_s", 3.0, "no diagnosis for this long -> stale and unknown, s"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
@@ -61,12 +66,9 @@ class HealthNode(Node):
         declare_parameters(self, PARAMETERS)
         p = self.get_parameter
         ids = [str(tid) for tid in p("thruster_ids").value]
-        preset = p("preset").value
-        self._tracker = HealthTracker(
-            ids,
-            ThrustReference(load_config(preset), background=True),
-            float(p("stale_after_s").value),
-        )
+        folder = str(p("reference").value) or str(default_models_dir() / "reference")
+        reference = ThrustReference.load(folder)
+        self._tracker = HealthTracker(ids, reference, float(p("stale_after_s").value))
         self._pub = self.create_publisher(
             VehicleHealth, HEALTH_TOPIC, HEALTH_QOS, event_callbacks=NO_PUB_EVENTS
         )
@@ -77,7 +79,7 @@ class HealthNode(Node):
         self.create_timer(float(p("period_s").value), self._publish)
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
         self.get_logger().info(
-            f"health of {', '.join(ids)} on {HEALTH_TOPIC} (reference: {preset})"
+            f"health of {', '.join(ids)} on {HEALTH_TOPIC} (reference: {reference.name})"
         )
 
     def _now_s(self) -> float:

@@ -2,7 +2,7 @@
 
 ``tfdd`` is the project's bridge protocol (frames, encoders, streaming decoder, sequence rule),
 ``kiss`` the KISS / BLHeli_32 ESC telemetry, ``crc`` their checksums, ``plausibility`` what the
-driver refuses to publish. ``emulator`` serves a simulated thruster on a pseudo-terminal as the
-microcontroller would; ``link`` is the driver's logic without ROS (command shaping, watchdog,
-link health).
+driver refuses to publish, ``ports`` the serial ports, ``link`` the driver's logic without ROS
+(command shaping, watchdog, link health), ``sequence`` and ``stuck`` the sequence and stuck-value
+checks.
 """

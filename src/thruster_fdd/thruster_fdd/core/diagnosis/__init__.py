@@ -1,6 +1,6 @@
-"""The fault classifier: residual windows in, the diagnosed condition out (docs/diagnosis.md).
+"""The fault classifier and thruster health on the vehicle (docs/diagnosis.md).
 
-On the vehicle: ``features`` (window features), ``model`` (the loaded classifier), ``stream``
-(online decisions). On shore: ``offline`` (a whole trace), ``training``, ``metrics``,
-``evaluation`` and ``table3`` (the paper's protocol).
+``features`` (window features), ``model`` (the loaded classifier), ``stream`` (online
+decisions), ``reference`` (the exported reference load curves), ``effectiveness`` (thrust
+available) and ``health`` (vehicle-level health).
 """

@@ -4,10 +4,10 @@ uncertainty, from the telemetry the residuals carry (docs/diagnosis.md, "Effecti
 
 Method:
 
-1. Reference curves (``ThrustReference``): the thruster type's simulator configuration at steady
-   state, for each fault family of ``sim.plant.severity_spec`` (blades lost 0..2, fouling 0..2)
-   on a grid of severities and for each supply voltage: speed, electrical power ``V I`` and
-   thrust against command.
+1. Reference curves (``diagnosis.reference.ThrustReference``): the thruster type's physics at
+   steady state, for each fault family (blades lost 0..2, fouling 0..2) on a grid of
+   severities and supply voltages: speed, electrical power ``V I`` and thrust against command.
+   They are computed ashore and read from a folder beside the models.
 2. Severity evidence (``EffectivenessEstimator.push``): each sample's measured power is compared
    with every severity's power at the measured speed. The load a propeller puts on its motor
    at a given speed does not depend on the command path (deadband, ESC lag, dead time) and
@@ -29,157 +29,24 @@ Method:
 from __future__ import annotations
 
 import math
-import threading
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from thruster_fdd.core.sim.config import SimConfig
-from thruster_fdd.core.sim.plant import FAULT_FAMILIES, MAX_SEVERITY, RAD_S_TO_RPM, severity_spec
-from thruster_fdd.core.sim.steady import steady_curves
-
-SEVERITY_STEP = 0.1
-"""Spacing of the severity grid of the reference curves."""
-
-VOLTAGE_STEP_V = 0.5
-"""Supply voltages are binned to this step for the reference curves, V."""
-
-MIN_SPEED_FRACTION = 0.25
-"""A sample informs the severity when the rotor turns faster than this share of the healthy top
-speed at its supply (slow rotation: power is mostly losses, the load tells little)."""
+from thruster_fdd.core.diagnosis.reference import (
+    FAULT_FAMILIES,
+    MAX_SEVERITY,
+    SEVERITY_STEP,
+    ThrustReference,
+)
 
 MIN_CHANGE = 0.2
 """Smallest departure of the recent severity (blades lost, fouling level) that counts as a
 change of the fault (``EffectivenessEstimator``)."""
 
-_COMMANDS = np.linspace(0.0, 1.0, 51)  # command magnitudes of the curves, both directions
-_SPEED_POINTS = 160  # speed grid of the power-at-speed tables
+_RAD_S_TO_RPM = 60.0 / (2.0 * math.pi)
 _TYPICAL = np.linspace(0.3, 1.0, 8)  # commands for the gain when the window asks no thrust
-
-
-@dataclass(frozen=True)
-class FamilyCurves:
-    """Steady-state reference of one fault family at one supply voltage, one direction.
-
-    Attributes
-    ----------
-    severities : np.ndarray, shape (K,)
-        Severity grid, 0 first (healthy).
-    thrust : np.ndarray, shape (K, U)
-        Thrust magnitude per severity at the command magnitudes ``_COMMANDS``, N.
-    speeds : np.ndarray, shape (S,)
-        Speed grid of ``power``, rad/s, uniform from 0.
-    power : np.ndarray, shape (K, S)
-        Electrical power ``V I`` per severity at those speeds, W (held at the last value beyond
-        the speed a severity reaches).
-    informative_speed : float
-        ``MIN_SPEED_FRACTION`` of the healthy top speed, rad/s.
-    """
-
-    severities: np.ndarray
-    thrust: np.ndarray
-    speeds: np.ndarray
-    power: np.ndarray
-    informative_speed: float
-
-    def power_at(self, speed: float) -> np.ndarray:
-        """Power of every severity at ``speed`` rad/s, W, shape (K,) (linear interpolation)."""
-        step = self.speeds[1]
-        x = min(max(speed / step, 0.0), len(self.speeds) - 1.000001)
-        i = int(x)
-        f = x - i
-        return self.power[:, i] * (1.0 - f) + self.power[:, i + 1] * f
-
-
-class ThrustReference:
-    """Steady-state reference curves of a thruster type (its simulator configuration, spread not
-    applied), computed per supply-voltage bin when first needed (about 2 s a bin for ``t100``).
-
-    Parameters
-    ----------
-    config : SimConfig
-        The thruster type (a preset such as ``t100`` / ``t200``, or a fitted configuration).
-    background : bool
-        Compute a missing bin on a worker thread and answer None until it is there (a node's
-        callbacks must not block for seconds), instead of computing it at once.
-    """
-
-    def __init__(self, config: SimConfig, *, background: bool = False) -> None:
-        self.config = config
-        self.severities = np.round(np.arange(0.0, MAX_SEVERITY + 1e-9, SEVERITY_STEP), 10)
-        self._cache: dict[float, dict[tuple[str, bool], FamilyCurves]] = {}
-        self._background = background
-        self._pending: set[float] = set()
-        self._lock = threading.Lock()
-
-    @staticmethod
-    def voltage_bin(voltage: float) -> float:
-        """The supply voltage of the curves used for a measured ``voltage`` V."""
-        return round(min(max(voltage, 6.0), 30.0) / VOLTAGE_STEP_V) * VOLTAGE_STEP_V
-
-    def curves(self, family: str, voltage: float, reverse: bool) -> FamilyCurves | None:
-        """The curves of ``family`` at the bin of ``voltage`` V, forward or ``reverse``; None
-        while a background computation of the bin runs."""
-        key = self.voltage_bin(voltage)
-        curves = self._cache.get(key)
-        if curves is None:
-            if not self._background:
-                curves = self._cache[key] = self._make(key)
-            else:
-                self._request(key)
-                return None
-        return curves[(family, reverse)]
-
-    def _request(self, key: float) -> None:
-        with self._lock:
-            if key in self._pending:
-                return
-            self._pending.add(key)
-
-        def work() -> None:
-            self._cache[key] = self._make(key)
-            with self._lock:
-                self._pending.discard(key)
-
-        threading.Thread(target=work, name=f"curves-{key:g}V", daemon=True).start()
-
-    def _make(self, voltage: float) -> dict[tuple[str, bool], FamilyCurves]:
-        """Every family and direction at ``voltage`` V, in one steady-state solve."""
-        specs = [
-            severity_spec(f, float(s), voltage) for f in FAULT_FAMILIES for s in self.severities
-        ]
-        commands = np.concatenate([_COMMANDS, -_COMMANDS])
-        rpm, current, plants = steady_curves(self.config, commands, voltage, specs)
-        k = len(self.severities)
-        n = len(_COMMANDS)
-        out = {}
-        for i, family in enumerate(FAULT_FAMILIES):
-            rows = slice(i * k, (i + 1) * k)
-            for reverse in (False, True):
-                cols = slice(n, 2 * n) if reverse else slice(0, n)
-                w = np.abs(rpm[rows, cols]) / RAD_S_TO_RPM
-                ibus = current[rows, cols]
-                fam = plants[rows]
-                k_t = np.array([p.k_thrust_rev if reverse else p.k_thrust for p in fam])
-                r_int = np.array([p.r_int for p in fam])
-                power = (voltage - r_int[:, None] * ibus) * ibus
-                speeds = np.linspace(0.0, float(w.max()), _SPEED_POINTS)
-                table = np.empty((k, len(speeds)))
-                for j in range(k):
-                    moving = w[j] > 0.0
-                    if moving.sum() < 2:
-                        table[j] = power[j, -1]
-                    else:
-                        table[j] = np.interp(speeds, w[j, moving], power[j, moving])
-                out[(family, reverse)] = FamilyCurves(
-                    severities=self.severities,
-                    thrust=k_t[:, None] * w * w,
-                    speeds=speeds,
-                    power=table,
-                    informative_speed=MIN_SPEED_FRACTION * float(w[0].max()),
-                )
-        return out
 
 
 @dataclass(frozen=True)
@@ -332,7 +199,6 @@ class EffectivenessEstimator:
         self._fast = _Evidence(k, self.change_memory_s)
         self._next_check_s = self.change_memory_s
         self._last_t: float | None = None
-        self._last = NO_EVIDENCE
         self._recent.clear()
 
     def push(self, t_s: float, command: float, voltage: float, rpm: float, current: float) -> None:
@@ -346,13 +212,13 @@ class EffectivenessEstimator:
         self._recent.append((t_s, command, voltage))
         while self._recent and self._recent[0][0] < t_s - self.window_s:
             self._recent.popleft()
-        speed = abs(rpm) / RAD_S_TO_RPM
+        speed = abs(rpm) / _RAD_S_TO_RPM
         reverse = rpm < 0.0
         # Braking (the rotor turning against the command) draws no propeller load.
         if dt <= 0.0 or (command != 0.0 and (command < 0.0) != reverse):
             return
         tables = [self.reference.curves(f, voltage, reverse) for f in FAULT_FAMILIES]
-        if tables[0] is None or speed < tables[0].informative_speed:
+        if speed < tables[0].informative_speed:
             return
         power = voltage * current
         var = self.power_noise_w**2 + (self.power_rel_error * power) ** 2
@@ -385,48 +251,30 @@ class EffectivenessEstimator:
             self.reference.severities, self.correlation_s
         )
         gains = self._gains(family)
-        if gains is None:
-            return self._last
         value = float(np.interp(severity, self.reference.severities, gains))
         slope = float(np.max(np.abs(np.diff(gains)))) / SEVERITY_STEP
         loss_std = self.loss_rel_std * max(1.0 - value, 0.0)
         std = math.sqrt(self.floor_std**2 + (slope * severity_std) ** 2 + loss_std**2)
-        self._last = Effectiveness(value, std, family, severity, severity_std, self._slow.seconds)
-        return self._last
+        return Effectiveness(value, std, family, severity, severity_std, self._slow.seconds)
 
-    def _gains(self, family: str) -> np.ndarray | None:
-        """Least-squares thrust gain of every severity over the recent commands, shape (K,);
-        None while the curves of the window's supply are computed in the background."""
+    def _gains(self, family: str) -> np.ndarray:
+        """Least-squares thrust gain of every severity over the recent commands, shape (K,)."""
         voltage = float(np.median([v for _, _, v in self._recent])) if self._recent else 15.0
         commands = np.array([c for _, c, _ in self._recent])
         num = np.zeros(len(self.reference.severities))
         den = 0.0
         for reverse in (False, True):
             curves = self.reference.curves(family, voltage, reverse)
-            if curves is None:
-                return None
             magnitudes = np.abs(commands[commands < 0.0] if reverse else commands[commands > 0.0])
             if magnitudes.size == 0:
                 continue
-            thrust = _at_commands(curves.thrust, magnitudes)
+            thrust = curves.thrust_at(magnitudes)
             num += thrust @ thrust[0]
             den += float(thrust[0] @ thrust[0])
         if den <= 1e-9:  # no thrust asked for: the gain over typical commands, forward
-            curves = self.reference.curves(family, voltage, False)
-            if curves is None:
-                return None
-            thrust = _at_commands(curves.thrust, _TYPICAL)
+            thrust = self.reference.curves(family, voltage, False).thrust_at(_TYPICAL)
             return thrust @ thrust[0] / float(thrust[0] @ thrust[0])
         return num / den
-
-
-def _at_commands(table: np.ndarray, magnitudes: np.ndarray) -> np.ndarray:
-    """Rows of ``table`` (K, len(_COMMANDS)) interpolated at command ``magnitudes`` (n,):
-    shape (K, n)."""
-    x = np.clip(magnitudes, 0.0, 1.0) * (len(_COMMANDS) - 1)
-    i = np.minimum(x.astype(int), len(_COMMANDS) - 2)
-    f = x - i
-    return table[:, i] * (1.0 - f) + table[:, i + 1] * f
 
 
 def _parabolic_minimum(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:

@@ -7,11 +7,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from thruster_fdd.core.diagnosis.effectiveness import (
-    Effectiveness,
-    EffectivenessEstimator,
-    ThrustReference,
-)
+from thruster_fdd.core.diagnosis.effectiveness import Effectiveness, EffectivenessEstimator
+from thruster_fdd.core.diagnosis.reference import ThrustReference
 from thruster_fdd.core.labels import CLASS_NAMES, FAULT_CLASSES, UNKNOWN
 
 

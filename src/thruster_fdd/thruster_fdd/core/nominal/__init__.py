@@ -1,7 +1,6 @@
-"""The nominal model: a NARX of the healthy thruster, whose residuals feed diagnosis
-(docs/nominal_model.md).
+"""The nominal model on the vehicle: a NARX of the healthy thruster, whose residuals feed
+diagnosis (docs/nominal_model.md).
 
-``spec`` (architectures, hyperparameters, scaling) and ``card``, ``runtime`` (the loaded model's
-online step) and ``residuals`` (the residual stream) are what runs on the vehicle: numpy and
-numba only. ``networks``, ``training``, ``export`` and ``evaluation`` need torch.
+``spec`` (architectures, hyperparameters, scaling), ``card``, ``runtime`` (the loaded model's
+online step) and ``residuals`` (the residual stream): numpy and numba only.
 """

@@ -1,0 +1,181 @@
+"""``thruster-fdd train nominal|classifier``: train and export a model from traces."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from thruster_fdd.core.errors import BadInputError
+from thruster_fdd_shore.commands.common import (
+    EXIT_OK,
+    check_output,
+    non_negative_int,
+    positive_float,
+)
+
+if TYPE_CHECKING:
+    from thruster_fdd.core.traces.data import Trace
+
+NAME = "train"
+HELP = "train the nominal model or the classifier from traces"
+DESCRIPTION = "Train and export a model from trace CSV / MCAP files or folders of them."
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``thruster-fdd train`` and its two targets."""
+    what = p.add_subparsers(dest="what", metavar="{nominal,classifier}", required=True)
+    n = what.add_parser(
+        "nominal",
+        help="train and export the nominal NARX model",
+        description=(
+            "Train the nominal NARX (inputs command, voltage; outputs rpm, current) on healthy "
+            "traces and export it (model_card.json, weights.npz, model.pt2). The last "
+            "--validation-fraction of every trace gives the card's validation metrics, then the "
+            "model is retrained on everything. Same data and --seed give the same weights "
+            "(docs/nominal_model.md). An existing --out folder is replaced only by a complete, "
+            "checked export."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    n.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
+    n.add_argument("--out", type=Path, default=Path("models/nominal"), metavar="DIR")
+    n.add_argument(
+        "--seed", type=non_negative_int, default=0, help="seed of initialisation and shuffling"
+    )
+    n.add_argument(
+        "--mode",
+        choices=["parallel", "series-parallel"],
+        default="parallel",
+        help="NARX configuration the node uses for residuals (and trains for)",
+    )
+    n.add_argument("--validation-fraction", type=float, default=0.2, metavar="F")
+    n.add_argument(
+        "--epochs", type=non_negative_int, help="one-step epochs (default: the mode's default)"
+    )
+    n.add_argument(
+        "--finetune-epochs",
+        type=non_negative_int,
+        help="free-run epochs, parallel (default: the mode's)",
+    )
+    c = what.add_parser(
+        "classifier",
+        help="train and export the fault classifier",
+        description=(
+            "Train the window classifier (MLP on residual and signal features, calibrated, with "
+            "an UNKNOWN answer) on labelled traces: the 'condition' column of a trace CSV or the "
+            "labels of a recording; a trace whose label changes mid-run is used on both sides "
+            "of the change. Residuals come from the exported nominal model --nominal, whose id "
+            "the card records. Exports model_card.json, weights.npz and model.pt2 "
+            "(docs/diagnosis.md)."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    c.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
+    c.add_argument("--nominal", type=Path, default=Path("models/nominal"), metavar="DIR")
+    c.add_argument("--out", type=Path, default=Path("models/classifier"), metavar="DIR")
+    c.add_argument("--seed", type=non_negative_int, default=0, help="seed of initialisation")
+    c.add_argument("--window", type=positive_float, default=20.0, help="window length, s")
+    c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
+
+
+MIN_TRACE_S = 10.0
+"""Shortest trace ``train nominal`` takes, s (the lookback is 2 s, then validation and
+training parts of each trace)."""
+
+
+MIN_WINDOW_SAMPLES = 4
+"""Fewest nominal-model samples in a classifier window."""
+
+
+MAX_WINDOW_S = 600.0
+"""Longest classifier window, s."""
+
+
+def _read_long_traces(sources: list[Path]) -> list[Trace]:
+    """The traces of ``sources``; BadInputError naming a file with one shorter than
+    ``MIN_TRACE_S``."""
+    from thruster_fdd_shore.core.traces.files import read_traces, trace_files
+
+    traces = []
+    for file in trace_files(sources):
+        for trace in read_traces([file]):
+            span = float(trace.t[-1] - trace.t[0])
+            if span < MIN_TRACE_S:
+                raise BadInputError(
+                    f"{file}: a trace of {span:g} s; training needs at least {MIN_TRACE_S:g} s"
+                )
+            traces.append(trace)
+    return traces
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train and export the model ``args.what``."""
+    import torch
+
+    from thruster_fdd_shore.core.traces.files import file_digests, read_traces
+
+    check_output(args.out, "--out", folder=True)
+    if args.out.resolve() in {Path(d).resolve() for d in args.data}:
+        raise BadInputError(f"--out {args.out} is also a --data folder; it would be replaced")
+    torch.set_num_threads(1)
+    if args.what == "nominal":
+        from thruster_fdd_shore.core.nominal.training import default_config, train_nominal
+
+        if not 0.0 <= args.validation_fraction < 1.0:
+            raise BadInputError(
+                f"--validation-fraction must be in [0, 1), got {args.validation_fraction}"
+            )
+        changes = {
+            k: v for k, v in (("epochs", args.epochs), ("finetune_epochs", args.finetune_epochs))
+            if v is not None
+        }  # fmt: skip
+        traces = _read_long_traces(args.data)
+        card = train_nominal(
+            traces,
+            args.out,
+            seed=args.seed,
+            config=default_config(args.mode, **changes),
+            validation_fraction=args.validation_fraction,
+            progress=True,
+            extra={"training_files": file_digests(args.data)},
+        )
+        m = card.training_metrics.get("validation", card.training_metrics["train"])
+        print(
+            f"exported {card.model_id} ({card.mode}) to {args.out}: {len(traces)} trace(s); "
+            f"rpm r2 {m['rpm_r2']:.4f}, current r2 {m['current_r2']:.4f}"
+        )
+        return EXIT_OK
+    from thruster_fdd.core.artifact import check_files
+    from thruster_fdd.core.nominal.card import read_nominal_card
+    from thruster_fdd_shore.core.diagnosis.training import ClassifierConfig, train_classifier
+
+    if args.out.resolve() == args.nominal.resolve():
+        raise BadInputError(f"--out {args.out} is the --nominal model; it would be replaced")
+    check_files(args.nominal, read_nominal_card(args.nominal))
+    if args.epochs < 1:
+        raise BadInputError(f"--epochs must be >= 1, got {args.epochs}")
+    sample_time_s = read_nominal_card(args.nominal).sample_time_s
+    if not MIN_WINDOW_SAMPLES * sample_time_s <= args.window <= MAX_WINDOW_S:
+        raise BadInputError(
+            f"--window must be within {MIN_WINDOW_SAMPLES * sample_time_s:g}..{MAX_WINDOW_S:g} s "
+            f"({MIN_WINDOW_SAMPLES} samples of the nominal model at least), got {args.window:g}"
+        )
+    traces = read_traces(args.data)
+    config = ClassifierConfig(window_s=args.window, epochs=args.epochs)
+    card = train_classifier(
+        traces,
+        args.nominal,
+        args.out,
+        seed=args.seed,
+        config=config,
+        progress=True,
+        extra={"training_files": file_digests(args.data)},
+    )
+    m = card.training_metrics["heldout"]
+    print(
+        f"exported {card.model_id} to {args.out}: {len(traces)} trace(s), nominal model "
+        f"{card.nominal_model_id}; held-out windows: balanced accuracy "
+        f"{m['balanced_accuracy']:.4f}, ECE {m['ece']:.4f}"
+    )
+    return EXIT_OK

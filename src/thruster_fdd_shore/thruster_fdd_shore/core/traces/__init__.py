@@ -1,0 +1,1 @@
+"""Traces ashore: the trace CSV format, the files a command reads, replay checks."""

@@ -1,0 +1,253 @@
+"""`thruster-fdd up` end to end: emulators, drivers, command players, the live table, shutdown."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from thruster_fdd.core.artifact import default_models_dir
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def _children_of(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-eo", "pid,ppid"], capture_output=True, text=True).stdout
+    return [int(p) for p, pp in (line.split() for line in out.splitlines()[1:]) if int(pp) == pid]
+
+
+def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    from thruster_fdd.core.traces.mcap_io import read_trace_mcap
+    from thruster_fdd_shore.core.traces.files import bag_files
+
+    cmd = ["thruster-fdd", "up", "--thrusters", "2", "--duration", "12", "--print-period", "2"]
+    proc = subprocess.Popen(
+        [*cmd, "--record-dir", str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    stages = sum(
+        (default_models_dir() / folder / "model_card.json").is_file()
+        for folder in ("nominal", "classifier")
+    )
+    # An emulator per thruster; one container with the command players; the vehicle process
+    # (drivers and exported model stages); the health node; the recorder.
+    expected = 2 + 4
+    deadline = time.monotonic() + 10.0  # a loaded machine starts them in seconds
+    children = _children_of(proc.pid)
+    while len(children) < expected and time.monotonic() < deadline:
+        time.sleep(0.2)
+        children = _children_of(proc.pid)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out
+    assert "the recorder exited" not in out
+    assert len(children) == expected
+    final = out.split("final:")[1]
+    rows = {m[1]: float(m[2]) for m in re.finditer(r"^(t\d)\s+([\d.]+)\s", final, re.M)}
+    assert set(rows) == {"t0", "t1"}
+    assert all(40.0 <= rate <= 60.0 for rate in rows.values()), final
+    assert final.count("OK: telemetry") == 2, final
+    time.sleep(0.5)
+    for pid in children:
+        stat = Path(f"/proc/{pid}/stat")
+        assert not stat.exists() or " Z " in stat.read_text(), f"child {pid} still running"
+    (bag,) = tmp_path.glob("up_*")
+    files = bag_files(bag)
+    assert files, out
+    traces = {t.thruster_id: t for t in read_trace_mcap(files[0])}
+    with files[0].open("rb") as f:
+        records = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    meta = records["thruster_fdd_final"]
+    assert meta["thruster_ids"] == "t0,t1"
+    assert int(meta["messages"]) > 0
+    if stages:
+        assert meta["model_ids"].startswith("nominal=nominal-")
+    assert set(traces) == {"t0", "t1"}
+    assert len(traces["t0"]) > 4 * 40, "at least 4 s of 50 Hz telemetry recorded"
+
+
+def _child_running(parent: int, text: str) -> int | None:
+    """The pid of ``parent``'s child whose command line holds ``text`` (None if none runs)."""
+    for pid in _children_of(parent):
+        try:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if text in cmdline:
+            return pid
+    return None
+
+
+def test_a_recorder_that_exits_is_restarted_while_the_vehicle_keeps_running(
+    tmp_path: Path,
+) -> None:
+    from thruster_fdd.core.traces.mcap_io import read_trace_mcap
+
+    cmd = ["thruster-fdd", "up", "--duration", "25", "--print-period", "2"]
+    proc = subprocess.Popen(
+        [*cmd, "--record-dir", str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not list(tmp_path.glob("up_*/up_*.mcap")):
+            time.sleep(0.2)
+        recorder = _child_running(proc.pid, "thruster_fdd.nodes.recorder")
+        vehicle = _child_running(proc.pid, "thruster_fdd.nodes.container esc_driver")
+        assert recorder is not None, "no recorder"
+        assert vehicle is not None, "no vehicle process"
+        time.sleep(2.0)
+        os.kill(recorder, signal.SIGKILL)
+        deadline = time.monotonic() + 15
+        restarted = None
+        while time.monotonic() < deadline and restarted in (None, recorder):
+            time.sleep(0.2)
+            restarted = _child_running(proc.pid, "thruster_fdd.nodes.recorder")
+        assert restarted not in (None, recorder), "the recorder was not restarted"
+        assert _child_running(proc.pid, "thruster_fdd.nodes.container esc_driver") == vehicle
+        out, _ = proc.communicate(timeout=90)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, out
+    assert "the recorder exited (code -9); restart 1" in out, out
+    final = out.split("final:")[1]
+    assert "OK: telemetry" in final, final
+    (again,) = tmp_path.glob("up_*_r1/up_*_r1_*.mcap")
+    (trace,) = read_trace_mcap(again)
+    assert len(trace) > 5 * 40, "at least 5 s of 50 Hz telemetry recorded after the restart"
+
+
+def test_up_rejects_a_bad_fault_spec() -> None:
+    out = subprocess.run(
+        ["thruster-fdd", "up", "--fault", "t9:biofouling@3", "--duration", "1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2
+    assert "--fault" in out.stderr
+
+
+def test_a_live_fault_recorded_by_up_replays_to_the_same_diagnoses(tmp_path: Path) -> None:
+    models = default_models_dir()
+    if not (models / "classifier" / "model_card.json").is_file():
+        pytest.fail("the committed classifier model is missing")
+    live = subprocess.run(
+        ["thruster-fdd", "up", "--duration", "70", "--signal", "multilevel", "--print-period",
+         "10", "--fault", "t0:broken_blade_2@25", "--record-dir", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )  # fmt: skip
+    assert live.returncode == 0, live.stdout[-3000:]
+    (bag,) = tmp_path.glob("up_*")  # the bag folder
+    replay = subprocess.run(
+        ["thruster-fdd", "replay", str(bag), "--json", str(tmp_path / "r.json")],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    print(replay.stdout)
+    assert "expected (recorded)" in replay.stdout
+    assert replay.returncode == 0, replay.stdout + replay.stderr[-2000:]
+
+
+def test_kill_9_of_up_still_finishes_the_bag(tmp_path: Path) -> None:
+    """The recorder gets SIGINT when `up` dies (PR_SET_PDEATHSIG) and writes the files' ends:
+    the bag opens in rosbags' reader, which needs every file complete."""
+    import os
+    import signal
+
+    from rosbags.rosbag2 import Reader
+
+    proc = subprocess.Popen(
+        ["thruster-fdd", "up", "--duration", "120", "--print-period", "30", "--record-dir",
+         str(tmp_path)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and not list(tmp_path.glob("up_*/metadata.yaml")):
+            time.sleep(0.5)
+        time.sleep(6.0)  # telemetry, residuals and health to record
+        children = _children_of(proc.pid)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        end = time.monotonic() + 20.0
+        while time.monotonic() < end and any(
+            Path(f"/proc/{pid}").exists() and " Z " not in Path(f"/proc/{pid}/stat").read_text()
+            for pid in children
+        ):
+            time.sleep(0.2)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    (bag,) = tmp_path.glob("up_*")
+    with Reader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert sum(1 for _ in reader.messages()) == reader.message_count
+    assert counts["/thruster/t0/esc/telemetry"] > 100
+    assert counts.get("/thruster_fdd/health", 0) >= 1
+
+
+def test_per_thruster_driver_settings_reach_the_parameters_file(tmp_path: Path) -> None:
+    import argparse
+
+    import yaml
+
+    from thruster_fdd.core.errors import BadInputError
+    from thruster_fdd_shore.commands.up import node_parameters, plan_from_args, write_parameters
+
+    config = tmp_path / "up.yaml"
+    config.write_text(
+        "rate_hz: 50\nthrusters:\n"
+        "  - {id: t0}\n"
+        "  - {id: t1, port: /dev/ttyUSB1, protocol: kiss, baud: 57600, pole_pairs: 14,\n"
+        "     rate_hz: 100, command_rate_hz: 25, command_timeout_s: 0.3,\n"
+        "     max_command_rate_per_s: 0, bridge_timeout_ms: 250}\n"
+    )
+    args = argparse.Namespace(config=config, rate=50.0, fault=[], bridge="python")
+    rate, plans = plan_from_args(args)
+    params = node_parameters(plans, rate, tmp_path, tmp_path / "no-models")
+    write_parameters(params, tmp_path / "params.yaml")
+    written = yaml.safe_load((tmp_path / "params.yaml").read_text())
+    t1 = written["/thruster/t1/esc_driver"]["ros__parameters"]
+    assert t1 == {
+        "thruster_id": "t1",
+        "port": "/dev/ttyUSB1",
+        "protocol": "kiss",
+        "rate_hz": 100.0,
+        "baud": 57600,
+        "pole_pairs": 14,
+        "command_rate_hz": 25,
+        "command_timeout_s": 0.3,
+        "max_command_rate_per_s": 0,
+        "bridge_timeout_ms": 250,
+    }
+    t0 = written["/thruster/t0/esc_driver"]["ros__parameters"]
+    assert t0 == {
+        "thruster_id": "t0",
+        "port": str(tmp_path / "t0.tty"),
+        "protocol": "tfdd",
+        "rate_hz": 50.0,
+    }
+    assert "/thruster/t0/command_player" in written
+    assert "/thruster/t1/command_player" not in written
+    config.write_text("thrusters:\n  - {id: t0, port: /dev/ttyS0}\n  - {id: t1, port: /dev/ttyS0}")
+    with pytest.raises(BadInputError, match="ports must be unique"):
+        plan_from_args(args)
+    for bad in ("baud: -1", "baud: 9600.5", "command_timeout_s: 0", "pole_pairs: true"):
+        config.write_text(f"thrusters:\n  - {{id: t0, {bad}}}\n")
+        with pytest.raises(BadInputError, match=bad.split(":")[0]):
+            plan_from_args(args)
