@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from thruster_fdd.core.diagnosis.coverage import OPERATING_POINT
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, window_features
 from thruster_fdd.core.diagnosis.model import ClassifierModel, softmax
 from thruster_fdd.core.diagnosis.stream import Decision, DiagnosisStream
@@ -238,7 +239,7 @@ def test_online_stream_equals_offline_diagnose_trace(
         assert d.t_s - d.t_start_s == pytest.approx(WINDOW_S - 0.1)
 
 
-def test_hysteresis_gap_and_invalid_samples(
+def test_decisions_every_hop_gaps_and_invalid_samples(
     loaded: tuple[NominalModel, ClassifierModel],
 ) -> None:
     _, classifier = loaded
@@ -250,12 +251,8 @@ def test_hysteresis_gap_and_invalid_samples(
     assert out[n - 2] is None
     assert out[n - 1] is not None  # first decision: the window just filled
     assert len(decisions) == 1 + 20 // 5  # then every 0.5 s = 5 samples
-    raws = [d.raw_label for d in decisions]
-    for k, d in enumerate(decisions):
-        if k < 2:
-            assert d.label == UNKNOWN  # three agreeing raw labels needed
-        elif len(set(raws[k - 2 : k + 1])) == 1:
-            assert d.label == raws[k]
+    for d in decisions:
+        assert (d.label == UNKNOWN) == (d.reason != "")
     assert stream.push(0.1 * (n + 20), *row, False) is None  # invalid: skipped
     # a 2 s gap restarts the window: no decision until it is full again
     t0 = 0.1 * (n + 20) + 2.0
@@ -266,39 +263,42 @@ def test_hysteresis_gap_and_invalid_samples(
         DiagnosisStream(classifier, hysteresis=0)
 
 
-def test_idle_windows_give_no_evidence_and_do_not_flip_the_label(
+def test_idle_windows_give_no_evidence_and_keep_the_label(
     loaded: tuple[NominalModel, ClassifierModel],
 ) -> None:
     _, classifier = loaded
     n = classifier.window_samples
     driven = (0.6, 15.0, 2600.0, 3.0, 0.0, 0.0)
     idle = (0.0, 15.0, 0.0, 0.05, 0.0, 0.0)  # no turning sample: active_fraction 0
-    rows = [driven] * (n + 30) + [idle] * (3 * n)
-
-    def run(**kw: float) -> list[Decision]:
-        stream = DiagnosisStream(classifier, hop_s=0.1, **kw)
-        out = [stream.push(0.1 * k, *row, True) for k, row in enumerate(rows)]
-        return [d for d in out if d is not None]
-
-    decisions = run()
-    assert decisions[25].label == decisions[25].raw_label != UNKNOWN  # driven: own answer
-    # once fewer than 30 % of a window's samples turn (15 of 50), the window weighs nothing:
-    # from then on (hysteresis 2: one window later) the label stays put
-    quiet = 31 + n - 15
-    assert len(decisions) - quiet > 100
-    assert len({d.label for d in decisions[quiet + 1 :]}) == 1
-    # without accumulation the label follows the raw labels (plain hysteresis)
-    plain = run(evidence_tau_s=0.0)
-    raws = [d.raw_label for d in plain]
-    label = UNKNOWN
-    for k, d in enumerate(plain):
-        if k >= 1 and raws[k] == raws[k - 1]:
-            label = raws[k]
-        assert d.label == label
+    rows = [driven] * (n + 30) + [idle] * (3 * n) + [driven] * (2 * n)
+    stream = DiagnosisStream(classifier, hop_s=0.1)
+    out = [stream.push(0.1 * k, *row, True) for k, row in enumerate(rows)]
+    decisions = [d for d in out if d is not None]
+    quiet = [d for d in decisions if d.reason == "low_excitation"]
+    assert len(quiet) > 50
+    assert all(d.label == UNKNOWN for d in quiet)
+    assert len({d.fault_evidence for d in quiet}) == 1, "idle windows change no evidence"
+    before = next(d for d in reversed(decisions[: decisions.index(quiet[0])]) if not d.reason)
+    again = next(d for d in decisions[decisions.index(quiet[-1]) + 1 :] if not d.reason)
+    assert again.label == before.label  # the label stood through the idle stretch
     with pytest.raises(ValueError, match="evidence_tau_s"):
         DiagnosisStream(classifier, evidence_tau_s=-1.0)
     with pytest.raises(ValueError, match="excitation_range"):
         DiagnosisStream(classifier, excitation_range=(0.6, 0.3))
+
+
+def test_card_carries_the_training_region_and_its_calibration(models: Path) -> None:
+    card = json.loads((models / "classifier" / "model_card.json").read_text())
+    assert card["coverage"]["coordinates"] == list(OPERATING_POINT)
+    assert card["coverage"]["threshold"] >= 1.0
+    lo, hi = card["coverage"]["summary"]["voltage_mean"]
+    assert 11.0 < lo < hi < 16.0
+    assert card["calibration"]["windows"] > 0
+    assert 0.0 <= card["calibration"]["ece"] <= 1.0
+    classifier = ClassifierModel.load(models / "classifier")
+    trained = classifier.coverage.points[len(classifier.coverage.points) // 2]
+    assert classifier.coverage.covers(trained * classifier.coverage.resolution)[0]
+    assert not classifier.coverage.covers(np.array([0.5, 0.5, 0.1, 24.0]))[0]
 
 
 def test_healthy_and_fouled_are_told_apart_on_an_unseen_unit(
@@ -405,7 +405,15 @@ def test_cli_train_and_diagnose_json_has_design_keys(models: Path, tmp_path: Pat
     assert cli.main(["diagnose", str(data / "biofouling_41.csv"), "--models", str(out),
                      "--json", str(js)]) == 0  # fmt: skip
     result = json.loads(js.read_text())
-    assert set(result) == {"start", "overall", "events", "first_fault", "windows"}
+    assert set(result) == {
+        "start",
+        "overall",
+        "events",
+        "first_fault",
+        "unknown_reasons",
+        "fault_threshold",
+        "windows",
+    }
     assert set(result["overall"]) == {"label", "confidence"}
     for e in result["events"]:
         assert set(e) == {"t", "label", "confidence"}
@@ -413,7 +421,7 @@ def test_cli_train_and_diagnose_json_has_design_keys(models: Path, tmp_path: Pat
     assert result["overall"]["label"] in (*CLASS_NAMES, UNKNOWN)
     assert result["windows"]
     for w in result["windows"]:
-        assert {"t_start", "t_end", "label", "probabilities"} <= set(w)
+        assert {"t_start", "t_end", "label", "probabilities", "reason", "covered"} <= set(w)
         assert set(w["probabilities"]) == set(CLASS_NAMES)
         assert w["t_start"] < w["t_end"]
     assert cli.main(["diagnose", str(tmp_path / "none.csv"), "--models", str(out)]) == 2

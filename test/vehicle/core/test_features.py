@@ -15,7 +15,7 @@ from thruster_fdd.core.diagnosis.features import (
     MIN_REGION_SAMPLES,
     window_features,
 )
-from thruster_fdd.core.diagnosis.model import Z_CLIP, ClassifierModel
+from thruster_fdd.core.diagnosis.model import P_MIN, Z_CLIP, ClassifierModel
 from thruster_fdd_shore.core.sim.scenario import run_scenario
 
 
@@ -107,8 +107,11 @@ def test_compiled_decision_equals_the_numpy_definition() -> None:
     for k, (weight, bias) in enumerate(model._layers):
         h = h @ weight.T + bias
         h = np.maximum(h, 0.0) if k < len(model._layers) - 1 else h
+    n_classes = h.shape[1]
     e = np.exp(h / model.card.temperature - (h / model.card.temperature).max(1, keepdims=True))
-    np.testing.assert_allclose(probs, e / e.sum(1, keepdims=True), rtol=1e-9, atol=1e-12)
+    # The definition: the tempered softmax, moved into [P_MIN, 1 - P_MIN] (``bounded``).
+    want_p = P_MIN + (1.0 - n_classes * P_MIN) * e / e.sum(1, keepdims=True)
+    np.testing.assert_allclose(probs, want_p, rtol=1e-9, atol=1e-12)
     z = (filled - model._center) / model._scale
     _, _, mean, std = model._distance_args
     want = np.sqrt((((z[:, None] - mean[None]) / std[None]) ** 2).mean(axis=2)).min(axis=1)

@@ -3,9 +3,12 @@
 Subscribes to ``fdd/residual`` (which carries the model inputs with the residuals), runs
 ``core.diagnosis.stream.DiagnosisStream`` and publishes ``Diagnosis`` on ``fdd/diagnosis`` every
 hop, plus a ``/diagnostics`` status: OK for the nominal classes at 15 V, WARN for low supply
-voltage, ERROR for faults, STALE when residuals stop (then the diagnosis becomes UNKNOWN rather
-than repeating an old label). Residuals made by another nominal model than the one the classifier
-was trained with are refused (UNKNOWN, ERROR with both model ids).
+voltage and for an unknown diagnosis (with its reason: outside the training region, low
+excitation, ...), ERROR for faults, STALE when residuals stop (then the diagnosis becomes UNKNOWN
+rather than repeating an old label). A fault is published only once the sequential test's
+evidence reaches the threshold set for ``false_alarms_per_hour``. Residuals made by another
+nominal model than the one the classifier was trained with are refused (UNKNOWN, ERROR with
+both model ids).
 
 Setting the ``model_dir`` parameter at runtime loads a newly exported classifier without a
 restart; one that fails the checks is refused (the parameter change fails with the reason) and
@@ -70,6 +73,12 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("hop_s", 1.0, "time between two decisions, s"),
     ("hysteresis", 2, "consecutive equal window decisions needed to change the published label"),
     ("unknown_threshold", -1.0, "UNKNOWN threshold (negative: the model card's)"),
+    (
+        "false_alarms_per_hour",
+        1e-3,
+        "false-alarm rate the fault evidence threshold is set for, per hour of covered operation "
+        "(lower: fewer false alarms, later detection)",
+    ),
     ("stale_after_s", 3.0, "no residual for this long -> STALE and UNKNOWN, s"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
 )
@@ -89,6 +98,7 @@ class ClassifierNode(Node):
             "hop_s": float(p("hop_s").value),
             "hysteresis": int(p("hysteresis").value),
             "unknown_threshold": threshold if threshold >= 0 else None,
+            "false_alarms_per_hour": float(p("false_alarms_per_hour").value),
         }
         self._activate(ClassifierModel.load(model_dir), model_dir)
         self._staged: tuple[ClassifierModel, str] | None = None
@@ -195,7 +205,7 @@ class ClassifierNode(Node):
             self._last = decision
             self._publish(decision, msg.header)
 
-    def _publish(self, decision: Decision, header: object | None = None) -> None:
+    def _publish(self, decision: Decision, header: object | None = None, reason: str = "") -> None:
         out = Diagnosis(
             thruster_id=self._id,
             condition=CONDITION_CODES.get(decision.label, Diagnosis.UNKNOWN),
@@ -205,6 +215,11 @@ class ClassifierNode(Node):
             confidence=float(decision.confidence),
             window_s=float(decision.window_s),
             model_id=self._model.model_id,
+            reason=reason or decision.reason,
+            covered=decision.covered,
+            fault_evidence=_finite(decision.fault_evidence),
+            fault_candidate=decision.fault_candidate,
+            fault_threshold=_finite(decision.fault_threshold),
         )
         if header is not None:
             out.header = header
@@ -232,18 +247,20 @@ class ClassifierNode(Node):
                     window_s=0.0,
                     t_start_s=now,
                     distance=math.inf,
-                )
+                    fault_threshold=self._stream.threshold,
+                ),
+                reason="stale",
             )
         label = self._last.label if self._last is not None else UNKNOWN
         if self._mismatch:
             level, message = DiagnosticStatus.ERROR, self._mismatch
         elif silent:
             level, message = DiagnosticStatus.STALE, "no residuals: diagnosis unknown"
-        elif self._last is None or label == UNKNOWN:
-            level, message = (
-                DiagnosticStatus.WARN,
-                "diagnosis unknown (window filling or unlike any class)",
-            )
+        elif self._last is None:
+            level, message = DiagnosticStatus.WARN, "diagnosis unknown: window filling"
+        elif label == UNKNOWN:
+            why = self._last.reason.replace("_", " ")
+            level, message = DiagnosticStatus.WARN, f"diagnosis unknown: {why}"
         elif label.startswith("nominal") and label not in LOW_VOLTAGE:
             level, message = DiagnosticStatus.OK, f"{label} ({self._last.confidence:.2f})"
         elif label in LOW_VOLTAGE:
@@ -259,6 +276,14 @@ class ClassifierNode(Node):
             self._id,
             [
                 ("label", label),
+                ("reason", self._last.reason if self._last is not None else "warming_up"),
+                ("covered", str(self._last.covered if self._last is not None else False)),
+                (
+                    "fault_evidence",
+                    f"{self._last.fault_evidence:.2f} of {self._stream.threshold:.2f} nats"
+                    if self._last is not None
+                    else "0",
+                ),
                 ("residuals_received", str(self._received)),
                 ("model_id", self._model.model_id),
                 ("nominal_model_id", self._model.nominal_model_id),
@@ -266,6 +291,11 @@ class ClassifierNode(Node):
                 ("staged_model_id", self._staged[0].model_id if self._staged else ""),
             ],
         )
+
+
+def _finite(value: float) -> float:
+    """``value``, or 0 when it is not finite (every published float is finite)."""
+    return float(value) if math.isfinite(value) else 0.0
 
 
 def main(args: list[str] | None = None) -> None:

@@ -88,7 +88,7 @@ class HealthNode(Node):
     def _on_diagnosis(self, tid: str, msg: Diagnosis) -> None:
         self._received[tid] += 1
         now = self._now_s()
-        self._tracker.add_diagnosis(tid, msg.label, msg.confidence, now)
+        self._tracker.add_diagnosis(tid, msg.label, msg.confidence, now, msg.reason)
         if self._tracker.changed(now):
             self._publish()
 
@@ -129,6 +129,8 @@ class HealthNode(Node):
                     else ThrusterHealth.NO_EVIDENCE,
                     fitted_fault=eff.family,
                     fitted_severity=_finite(eff.severity, 0.0),
+                    label_age_s=_finite(e.label_age_s, 0.0),
+                    unknown_reason=e.unknown_reason,
                 )
             )
         self._pub.publish(out)
@@ -142,10 +144,18 @@ class HealthNode(Node):
             level, message = DiagnosticStatus.WARN, f"no diagnoses of {', '.join(stale)}"
         else:
             level, message = DiagnosticStatus.OK, f"health of {len(entries)} thruster(s)"
+        old = [e.thruster_id for e in entries if not e.stale and e.unknown_reason]
+        if old and level == DiagnosticStatus.OK:
+            level = DiagnosticStatus.WARN
+            message = f"diagnosis unknown now, last trustworthy label kept: {', '.join(old)}"
         values = [("thrusters", ",".join(e.thruster_id for e in entries))]
         for e in entries:
             eff = e.effectiveness
             values.append((f"{e.thruster_id}.effectiveness", f"{eff.value:.3f} +- {eff.std:.3f}"))
+            values.append((f"{e.thruster_id}.label", e.label))
+            values.append((f"{e.thruster_id}.label_age_s", f"{e.label_age_s:.1f}"))
+            if e.unknown_reason:
+                values.append((f"{e.thruster_id}.unknown_reason", e.unknown_reason))
             values.append(
                 (f"{e.thruster_id}.diagnoses_received", str(self._received[e.thruster_id]))
             )

@@ -178,4 +178,10 @@ def run(args: argparse.Namespace) -> int:
         f"{card.nominal_model_id}; held-out windows: balanced accuracy "
         f"{m['balanced_accuracy']:.4f}, ECE {m['ece']:.4f}"
     )
+    cal = card.calibration
+    units = ", ".join(cal["units"]) or "a time split of the traces"
+    print(f"calibrated on {cal['windows']} held-out windows of {units}: ECE {cal['ece']:.4f}")
+    print(f"training region (1st-99th percentile; threshold {card.coverage['threshold']:.2f}):")
+    for name, (lo, hi) in card.coverage["summary"].items():
+        print(f"  {name:<17} {lo:8.3f} .. {hi:8.3f}")
     return EXIT_OK

@@ -32,6 +32,11 @@ class ThrusterHealth:
         No diagnosis for longer than the tracker's ``stale_after_s``.
     effectiveness : Effectiveness
         Thrust available relative to a healthy thruster, with its uncertainty.
+    label_age_s : float
+        Time since the diagnosis behind ``label`` arrived, s (grows while the classifier
+        cannot tell and the last trustworthy label is kept).
+    unknown_reason : str
+        Reason of the latest diagnosis when it is unknown, ``""`` otherwise.
     """
 
     thruster_id: str
@@ -41,6 +46,14 @@ class ThrusterHealth:
     faulty: bool
     stale: bool
     effectiveness: Effectiveness
+    label_age_s: float = 0.0
+    unknown_reason: str = ""
+
+
+KEEP_REASONS = ("outside_training", "low_excitation")
+"""Reasons of an unknown diagnosis under which the last trustworthy label stands: the classifier
+cannot tell at this operating point, which says nothing against what it said before. Other
+unknowns (unlike every class, evidence pending, stale) replace it."""
 
 
 def masks(entries: Sequence[ThrusterHealth]) -> tuple[int, int]:
@@ -74,13 +87,33 @@ class HealthTracker:
         self.thruster_ids = ids
         self.stale_after_s = stale_after_s
         self._estimators = {tid: EffectivenessEstimator(reference) for tid in ids}
-        self._diagnosis: dict[str, tuple[str, float, float]] = {}  # label, confidence, time s
+        self._latest: dict[str, tuple[str, str, float]] = {}  # label, reason, time s
+        self._trusted: dict[str, tuple[str, float, float]] = {}  # label, confidence, time s
         self._published: dict[str, tuple[str, bool, bool]] = {}
 
-    def add_diagnosis(self, thruster_id: str, label: str, confidence: float, now_s: float) -> None:
-        """A diagnosis of ``thruster_id`` arrived at ``now_s`` (the tracker's clock, s)."""
-        if thruster_id in self._estimators:
-            self._diagnosis[thruster_id] = (label, confidence, now_s)
+    def add_diagnosis(
+        self, thruster_id: str, label: str, confidence: float, now_s: float, reason: str = ""
+    ) -> None:
+        """A diagnosis of ``thruster_id`` arrived at ``now_s`` (the tracker's clock, s), with the
+        reason when its label is unknown."""
+        if thruster_id not in self._estimators:
+            return
+        self._latest[thruster_id] = (label, reason, now_s)
+        if label != UNKNOWN:
+            self._trusted[thruster_id] = (label, confidence, now_s)
+        elif reason not in KEEP_REASONS:
+            self._trusted.pop(thruster_id, None)
+
+    def _current(self, tid: str, now_s: float) -> tuple[str, float, float, bool, str]:
+        """Label, confidence, age s, stale, unknown reason of ``tid`` at ``now_s``."""
+        latest = self._latest.get(tid)
+        if latest is None or now_s - latest[2] > self.stale_after_s:
+            return UNKNOWN, 0.0, 0.0, True, "stale" if latest else "no_diagnosis"
+        label, reason, _ = latest
+        trusted = self._trusted.get(tid)
+        if trusted is None:
+            return UNKNOWN, 0.0, 0.0, False, reason if label == UNKNOWN else ""
+        return trusted[0], trusted[1], now_s - trusted[2], False, reason if label == UNKNOWN else ""
 
     def add_sample(
         self,
@@ -100,10 +133,7 @@ class HealthTracker:
         """Every thruster's health at ``now_s`` (s, the clock of ``add_diagnosis``)."""
         out = []
         for tid in self.thruster_ids:
-            label, confidence, at = self._diagnosis.get(tid, (UNKNOWN, 0.0, -float("inf")))
-            stale = now_s - at > self.stale_after_s
-            if stale:
-                label, confidence = UNKNOWN, 0.0
+            label, confidence, age, stale, reason = self._current(tid, now_s)
             out.append(
                 ThrusterHealth(
                     thruster_id=tid,
@@ -113,6 +143,8 @@ class HealthTracker:
                     faulty=label in FAULT_CLASSES,
                     stale=stale,
                     effectiveness=self._estimators[tid].estimate(),
+                    label_age_s=age,
+                    unknown_reason=reason,
                 )
             )
         return tuple(out)
@@ -122,9 +154,7 @@ class HealthTracker:
         returned True (the first call does)."""
         state = {}
         for tid in self.thruster_ids:
-            label, _, at = self._diagnosis.get(tid, (UNKNOWN, 0.0, -float("inf")))
-            stale = now_s - at > self.stale_after_s
-            label = UNKNOWN if stale else label
+            label, _, _, stale, _ = self._current(tid, now_s)
             state[tid] = (label, label in FAULT_CLASSES, stale)
         if state == self._published:
             return False

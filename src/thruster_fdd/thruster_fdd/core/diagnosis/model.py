@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from thruster_fdd.core.artifact import CARD_FILE, WEIGHTS_FILE, ModelCard, load_weights, read_card
+from thruster_fdd.core.diagnosis.coverage import OPERATING_POINT, Coverage
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, WINDOW_SIGNALS, window_features
 from thruster_fdd.core.errors import ModelMismatchError
 from thruster_fdd.core.labels import CLASS_NAMES
@@ -30,6 +31,16 @@ KIND = "classifier"
 
 Z_CLIP = 10.0
 """Standardised features are clipped to +-Z_CLIP inside the network (wild inputs stay finite)."""
+
+P_MIN = 1e-6
+"""Probabilities are clipped to [P_MIN, 1 - P_MIN]: calibration on held-out units supports no
+more certainty than that."""
+
+TEMPERATURE_RANGE = (0.05, 20.0)
+"""Temperatures a card may carry (outside: the calibration failed)."""
+
+COVERAGE_ARRAY = "coverage_points"
+"""Name of the training operating points (N, 4) in ``weights.npz``."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -65,6 +76,13 @@ class ClassifierCard(ModelCard):
         ``{"probability_threshold", "distance_threshold", "class_mean", "class_std"}``: a window
         is unknown below the first or beyond the second; class mean/std are lists (C, F) in
         standardised units.
+    coverage : dict
+        ``{"coordinates", "resolution", "threshold", "quantile", "summary"}``: the operating
+        region of the training windows (``diagnosis.coverage``; the points themselves are the
+        ``coverage_points`` array of the weights file).
+    calibration : dict
+        How the probabilities were calibrated: held-out ``units``, ``windows``, the expected
+        calibration error ``ece`` before and after temperature scaling.
     """
 
     features: tuple[str, ...]
@@ -73,6 +91,8 @@ class ClassifierCard(ModelCard):
     nominal_model_id: str
     temperature: float
     unknown: dict[str, Any]
+    coverage: dict[str, Any]
+    calibration: dict[str, Any]
 
 
 def read_classifier_card(model_dir: str | Path) -> ClassifierCard:
@@ -115,10 +135,30 @@ def read_classifier_card(model_dir: str | Path) -> ClassifierCard:
         raise ModelMismatchError(f"{path}: non-finite class statistics or feature fill")
     if not (0.0 <= p_thr <= 1.0 and 0 < d_thr < math.inf):
         raise ModelMismatchError(f"{path}: unknown thresholds out of range ({p_thr}, {d_thr})")
-    if not (card.sample_time_s > 0 and card.window_s > 0 and card.temperature > 0):
-        raise ModelMismatchError(f"{path}: sample_time_s, window_s and temperature must be > 0")
-    if window_samples < 4:
-        raise ModelMismatchError(f"{path}: lookbacks.window_samples must be >= 4")
+    if not (0 < card.sample_time_s <= 10.0 and 0 < card.window_s <= 600.0):
+        raise ModelMismatchError(f"{path}: sample_time_s must be in (0, 10], window_s (0, 600]")
+    lo, hi = TEMPERATURE_RANGE
+    if not lo <= card.temperature <= hi:
+        raise ModelMismatchError(f"{path}: temperature {card.temperature} outside [{lo}, {hi}]")
+    if not (isinstance(window_samples, int) and 4 <= window_samples <= 100_000):
+        raise ModelMismatchError(f"{path}: lookbacks.window_samples must be in 4..100000")
+    if not math.isclose(window_samples * card.sample_time_s, card.window_s, rel_tol=1e-3):
+        raise ModelMismatchError(f"{path}: window_samples x sample_time_s differs from window_s")
+    try:
+        names = tuple(card.coverage["coordinates"])
+        resolution = np.asarray(card.coverage["resolution"], dtype=float)
+        threshold = float(card.coverage["threshold"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelMismatchError(
+            f"{path}: malformed coverage ({type(exc).__name__}: {exc})"
+        ) from exc
+    if names != OPERATING_POINT:
+        raise ModelMismatchError(f"{path}: coverage coordinates {list(names)}, expected "
+                                 f"{list(OPERATING_POINT)}")  # fmt: skip
+    if resolution.shape != (len(OPERATING_POINT),) or not np.all(resolution > 0):
+        raise ModelMismatchError(f"{path}: coverage resolution must be {len(OPERATING_POINT)} > 0")
+    if not (np.all(np.isfinite(resolution)) and 0 < threshold < math.inf):
+        raise ModelMismatchError(f"{path}: coverage threshold must be finite and > 0")
     return card
 
 
@@ -142,10 +182,15 @@ class ClassifierModel:
         Default top-probability threshold under which a window is unknown.
     distance_threshold : float
         Distance to the nearest class beyond which a window is unknown.
+    coverage : Coverage
+        The operating region of the training windows.
     """
 
     def __init__(
-        self, card: ClassifierCard, layers: tuple[tuple[np.ndarray, np.ndarray], ...]
+        self,
+        card: ClassifierCard,
+        layers: tuple[tuple[np.ndarray, np.ndarray], ...],
+        coverage: Coverage,
     ) -> None:
         self.card = card
         self.model_id = card.model_id
@@ -157,6 +202,7 @@ class ClassifierModel:
         self.probability_threshold = float(card.unknown["probability_threshold"])
         self.distance_threshold = float(card.unknown["distance_threshold"])
         self._layers = layers
+        self.coverage = coverage
         self._fill = np.array([card.feature_fill[f] for f in FEATURE_NAMES])
         self._center = np.array([card.scaling[f]["center"] for f in FEATURE_NAMES])
         self._scale = np.array([card.scaling[f]["scale"] for f in FEATURE_NAMES])
@@ -195,11 +241,23 @@ class ClassifierModel:
         ):
             raise ModelMismatchError(f"{path}: feature scaling differs from {CARD_FILE}")
         layers = mlp_layers(arrays, path)
-        model = cls(card, layers)
+        points = arrays.get(COVERAGE_ARRAY)
+        if points is None or points.ndim != 2 or points.shape[1] != len(OPERATING_POINT):
+            raise ModelMismatchError(f"{path}: lacks {COVERAGE_ARRAY} (N, {len(OPERATING_POINT)})")
+        if len(points) < 1:
+            raise ModelMismatchError(f"{path}: {COVERAGE_ARRAY} is empty")
+        resolution = np.asarray(card.coverage["resolution"], dtype=float)
+        coverage = Coverage(
+            points=points / resolution,
+            resolution=resolution,
+            threshold=float(card.coverage["threshold"]),
+        )
+        model = cls(card, layers, coverage)
         # Compile (or load from numba's cache) every kernel of a decision now, not in the middle
         # of the first window of a running node.
         window = np.tile([0.5, 15.0, 2000.0, 3.0, 0.0, 0.0], (model.window_samples, 1))
         model.predict_proba(window_features(window, model.sample_time_s)[None])
+        model.coverage.distance(np.zeros(len(OPERATING_POINT)))
         return model
 
     def fill(self, features: np.ndarray) -> np.ndarray:
@@ -208,11 +266,19 @@ class ClassifierModel:
         return np.where(np.isnan(x), self._fill, x)
 
     def predict_proba(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Calibrated probabilities (B, C) and the standardised RMS distance (B,) to the nearest
-        class of raw features (B, F) (NaN filled here)."""
+        """Calibrated probabilities (B, C), each in [P_MIN, 1 - P_MIN], and the standardised RMS
+        distance (B,) to the nearest class of raw features (B, F) (NaN filled here)."""
         x = self.fill(features)
         logits = mlp_forward(self._layers, x, self._center, self._scale)
-        return softmax(logits / self.card.temperature), _class_distance(x, *self._distance_args)
+        return bounded(softmax(logits / self.card.temperature)), _class_distance(
+            x, *self._distance_args
+        )
+
+
+def bounded(p: np.ndarray) -> np.ndarray:
+    """Probabilities (B, C) moved into [P_MIN, 1 - P_MIN], still summing to 1:
+    ``P_MIN + (1 - C P_MIN) p``."""
+    return P_MIN + (1.0 - p.shape[1] * P_MIN) * p
 
 
 def mlp_layers(

@@ -5,7 +5,9 @@ Pipeline (the same online in the classifier node and offline in ``diagnosis.offl
     telemetry --ResidualStream(nominal model)--> residual samples at the model's sample time
       --WindowFeaturizer--> one feature vector (diagnosis.features) per hop over the last window_s
       --ClassifierModel--> calibrated class probabilities + distance to the nearest class
-      --DiagnosisStream--> raw label (class, or "unknown") -> evidence -> hysteresis -> Decision
+      --DiagnosisStream--> coverage and excitation gate -> evidence (healthy classes: weighted
+        mean of log-probabilities and hysteresis; faults: a sequential test on log-likelihood
+        ratios) -> Decision
 """
 
 from __future__ import annotations
@@ -16,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from thruster_fdd.core.diagnosis.coverage import operating_point
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, WINDOW_SIGNALS, window_features
-from thruster_fdd.core.diagnosis.model import ClassifierModel
-from thruster_fdd.core.labels import UNKNOWN
+from thruster_fdd.core.diagnosis.model import P_MIN, ClassifierModel
+from thruster_fdd.core.labels import FAULT_CLASSES, UNKNOWN
 
 MAX_GAP_PERIODS = 3.0
 """A step longer than this many sample times between valid samples restarts the window."""
@@ -28,6 +31,54 @@ EVIDENCE_TAU_S = 5.0
 """Time constant of the decision layer's evidence accumulation, s of *excited* operation: each
 window's log-probabilities enter an exponentially weighted mean that forgets at this rate only
 while the thruster turns (tuned on validation units 400-405, docs/diagnosis.md)."""
+
+
+FALSE_ALARMS_PER_HOUR = 1e-3
+"""Default false-alarm rate the fault threshold is set for, per hour of covered operation."""
+
+LLR_CLIP = math.log((1.0 - P_MIN) / P_MIN)
+"""Largest log-likelihood ratio one window can contribute (the probabilities' own bound)."""
+
+OUTSIDE_TRAINING = "outside_training"
+LOW_EXCITATION = "low_excitation"
+UNLIKE_CLASSES = "unlike_classes"
+EVIDENCE_PENDING = "evidence_pending"
+WARMING_UP = "warming_up"
+REASONS: tuple[str, ...] = (
+    OUTSIDE_TRAINING,
+    LOW_EXCITATION,
+    UNLIKE_CLASSES,
+    EVIDENCE_PENDING,
+    WARMING_UP,
+)
+"""Why a decision is ``"unknown"`` (``Decision.reason``; ``Diagnosis.reason``):
+``outside_training``: the window's operating point is outside the classifier's training region;
+``low_excitation``: the rotor hardly turned; ``unlike_classes``: the features are unlike every
+class; ``evidence_pending``: the evidence leans to a fault that the sequential test has not yet
+confirmed; ``warming_up``: no informative window yet."""
+
+
+def fault_threshold(false_alarms_per_hour: float, window_s: float) -> float:
+    """Evidence (nats) at which the sequential test publishes a fault, for a false-alarm rate.
+
+    The test's statistic is a CUSUM of calibrated log-likelihood ratios, each overlapping
+    window weighted by hop / window so that one window length of data counts once. For such a
+    test the mean time between false alarms is at least ``exp(h)`` independent steps (Lorden's
+    bound); with one step per window length, ``h = ln(3600 / (rate * window_s))``.
+
+    Raises
+    ------
+    ValueError
+        If the rate is not in (0, 3600 / window_s) per hour or the window is not > 0.
+    """
+    if not (math.isfinite(window_s) and window_s > 0):
+        raise ValueError(f"window_s must be > 0, got {window_s}")
+    limit = 3600.0 / window_s
+    if not (math.isfinite(false_alarms_per_hour) and 0 < false_alarms_per_hour < limit):
+        raise ValueError(
+            f"false_alarms_per_hour must be in (0, {limit:g}), got {false_alarms_per_hour}"
+        )
+    return math.log(limit / false_alarms_per_hour)
 
 
 EXCITATION_RANGE: tuple[float, float] = (0.3, 0.6)
@@ -78,8 +129,9 @@ class WindowFeaturizer:
 
     def push(
         self, t_s: float, values: tuple[float, float, float, float, float, float], valid: bool
-    ) -> tuple[float, float, np.ndarray] | None:
-        """Add one sample; every hop with a full window return ``(t_start, t_end, features)``.
+    ) -> tuple[float, float, np.ndarray, np.ndarray] | None:
+        """Add one sample; every hop with a full window return its times, features and
+        operating point.
 
         Parameters
         ----------
@@ -93,8 +145,9 @@ class WindowFeaturizer:
 
         Returns
         -------
-        (t_start, t_end, features) or None
-            Times of the window's first and last sample (s) and ``window_features`` (F,).
+        (t_start, t_end, features, operating_point) or None
+            Times of the window's first and last sample (s), ``window_features`` (F,) and
+            ``coverage.operating_point`` (4,).
         """
         if not valid or not (math.isfinite(t_s) and all(math.isfinite(v) for v in values)):
             return None
@@ -119,7 +172,13 @@ class WindowFeaturizer:
         self._fresh = False
         self._since = 0
         arr = self._ring[self._end - self._count : self._end]
-        return float(arr[0, 0]), float(arr[-1, 0]), window_features(arr[:, 1:], self.sample_time_s)
+        samples = arr[:, 1:]
+        return (
+            float(arr[0, 0]),
+            float(arr[-1, 0]),
+            window_features(samples, self.sample_time_s),
+            operating_point(samples),
+        )
 
 
 @dataclass(frozen=True)
@@ -145,6 +204,19 @@ class Decision:
         Time of the window's first sample, s.
     distance : float
         Distance of the window's features to the nearest class (standardised RMS).
+    reason : str
+        Why ``label`` is ``"unknown"`` (one of ``REASONS``), ``""`` when it is a class.
+    covered : bool
+        The window's operating point lies in the classifier's training region.
+    coverage_distance : float
+        Its distance to the training region (``coverage.Coverage.distance``).
+    fault_evidence : float
+        The sequential test's statistic, nats (0 with no evidence of a fault).
+    fault_candidate : str
+        The fault class with the most accumulated evidence, ``""`` while ``fault_evidence`` is
+        0.
+    fault_threshold : float
+        Evidence at which a fault is published, nats.
     """
 
     t_s: float
@@ -155,6 +227,12 @@ class Decision:
     window_s: float
     t_start_s: float
     distance: float
+    reason: str = ""
+    covered: bool = True
+    coverage_distance: float = 0.0
+    fault_evidence: float = 0.0
+    fault_candidate: str = ""
+    fault_threshold: float = math.inf
 
 
 class DiagnosisStream:
@@ -167,26 +245,42 @@ class DiagnosisStream:
     hop_s : float
         Time between decisions once a window is full, s (rounded to whole samples).
     hysteresis : int
-        The reported label changes only when this many consecutive evidence labels agree on a
-        new one (``"unknown"`` included); it starts as ``"unknown"``.
+        The published healthy label changes only when this many consecutive informative
+        windows agree on a new one.
     unknown_threshold : float or None
-        Top probability under which a window is unknown; None uses the card's.
+        Top probability under which a window (and the healthy evidence) is unknown; None uses
+        the card's.
     evidence_tau_s : float
-        Time constant of the evidence accumulation, s of excited operation
-        (``EVIDENCE_TAU_S``); 0 turns accumulation off (the label follows the raw labels).
+        Time constant of the healthy-class evidence, s of excited operation
+        (``EVIDENCE_TAU_S``); 0 follows each window's own answer.
     excitation_range : (float, float)
         ``active_fraction`` below which a window weighs 0 and above which it weighs 1
         (``EXCITATION_RANGE``).
+    false_alarms_per_hour : float
+        False-alarm rate the fault threshold is set for (``fault_threshold``), per hour.
 
-    Decision layer: each window's calibrated log-probabilities ``log p`` and its "unlike every
-    class" flag enter exponentially weighted means with weight ``w`` (0..1, from the window's
-    share of turning samples); the forgetting factor is ``exp(-w hop / evidence_tau_s)``, so a
-    window without excitation neither adds evidence nor forgets it. The evidence label is the
-    argmax of ``softmax(mean log p)`` (a weighted geometric mean of recent windows), or
-    ``"unknown"`` when the weighted share of unlike windows exceeds 0.5 or its top probability
-    is under ``unknown_threshold``; before any excited window it is the raw label. Hysteresis
-    then acts on the evidence labels. ``raw_label``, ``probabilities`` and ``confidence`` of a
-    Decision stay the window's own.
+    Decision layer. A window is *informative* when the rotor turned (excitation weight
+    ``w > 0``, from its share of turning samples), its operating point is covered by the
+    training region (``ClassifierModel.coverage``) and its features are like some class; any
+    other window is published as ``"unknown"`` with the reason and changes no evidence.
+    Informative windows feed two kinds of evidence:
+
+    - faults, by a sequential test: the log-likelihood ratio of the fault classes together
+      against the healthy ones, ``log(p_F / p_H) + log(pi_H / pi_F)`` (the calibrated
+      probabilities with the training's equal class priors), clipped to ``LLR_CLIP``, weighted
+      by ``w * hop / window_s``, enters a CUSUM ``S``. A fault is published once ``S`` reaches
+      ``fault_threshold(false_alarms_per_hour, window_s)``, as the fault class with the most
+      accumulated evidence (the weighted mean of log-probabilities below); it stands until a
+      CUSUM of the opposite ratio reaches the same threshold (then the fault evidence
+      restarts);
+    - healthy classes: each window's log-probabilities enter an exponentially weighted mean
+      (forgetting only while the thruster turns); the label is the healthy class with the
+      largest softmax of that mean, ``"unknown"`` (``evidence_pending``) when the healthy
+      classes together fall under ``unknown_threshold``, with hysteresis.
+
+    ``raw_label`` and ``probabilities`` of a Decision stay the window's own (coverage
+    ignored); ``confidence`` is the evidence's probability of the published class (the window's
+    top probability when the label is ``"unknown"``), within [P_MIN, 1 - P_MIN].
     """
 
     def __init__(
@@ -198,6 +292,7 @@ class DiagnosisStream:
         unknown_threshold: float | None = None,
         evidence_tau_s: float = EVIDENCE_TAU_S,
         excitation_range: tuple[float, float] = EXCITATION_RANGE,
+        false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
     ) -> None:
         if not (math.isfinite(hop_s) and hop_s > 0):
             raise ValueError(f"hop_s must be > 0, got {hop_s}")
@@ -218,25 +313,32 @@ class DiagnosisStream:
         )
         self.evidence_tau_s = float(evidence_tau_s)
         self.excitation_range = (lo, hi)
+        self.threshold = fault_threshold(false_alarms_per_hour, model.window_s)
         hop_samples = max(1, round(hop_s / model.sample_time_s))
         self._hop_time_s = hop_samples * model.sample_time_s
+        self._gamma = min(self._hop_time_s / model.window_s, 1.0)
         self._windows = WindowFeaturizer(model.window_samples, hop_samples, model.sample_time_s)
-        self._recent: deque[str] = deque(maxlen=hysteresis)
-        self._label = UNKNOWN
         self._active_index = FEATURE_NAMES.index("active_fraction")
-        self._log_p = np.zeros(len(model.class_names))
-        self._weight = 0.0
-        self._unlike = 0.0
+        names = model.class_names
+        self._faults = np.array([c in FAULT_CLASSES for c in names])
+        if not self._faults.any() or self._faults.all():
+            raise ValueError("the classifier needs healthy and fault classes")
+        # Equal class priors (training is class-balanced): the prior odds of health to a fault.
+        self._prior_log_ratio = math.log(int((~self._faults).sum()) / int(self._faults.sum()))
+        self.reset()
 
     def reset(self) -> None:
         """Forget the window, the evidence and the label history (the label returns to
         ``"unknown"``)."""
         self._windows.reset()
-        self._recent.clear()
+        self._recent: deque[str] = deque(maxlen=self.hysteresis)
         self._label = UNKNOWN
         self._log_p = np.zeros(len(self.model.class_names))
         self._weight = 0.0
         self._unlike = 0.0
+        self._cusum = 0.0
+        self._declared = False
+        self._clear = 0.0
 
     def push(
         self,
@@ -266,61 +368,107 @@ class DiagnosisStream:
         -------
         Decision or None
             A decision every ``hop_s`` once a window is full, else None. A time gap restarts
-            the window (the label is kept).
+            the window (the label and the evidence are kept).
         """
         out = self._windows.push(
             t_s, (command, voltage, rpm, current, residual_rpm, residual_current), valid
         )
         if out is None:
             return None
-        t_start, t_end, features = out
-        return self._decide(t_start, t_end, features)
+        return self._decide(*out)
 
-    def _decide(self, t_start: float, t_end: float, features: np.ndarray) -> Decision:
+    def _decide(
+        self, t_start: float, t_end: float, features: np.ndarray, point: np.ndarray
+    ) -> Decision:
         probs, dist = self.model.predict_proba(features[None])
         p = probs[0]
         best = int(np.argmax(p))
-        confidence = float(p[best])
         distance = float(dist[0])
         unlike = distance > self.model.distance_threshold
         raw = (
-            UNKNOWN
-            if unlike or confidence < self.unknown_threshold
-            else self.model.class_names[best]
+            UNKNOWN if unlike or p[best] < self.unknown_threshold else self.model.class_names[best]
         )
-        evidence = self._evidence_label(features, p, unlike, raw)
-        self._recent.append(evidence)
-        if len(self._recent) == self.hysteresis and len(set(self._recent)) == 1:
-            self._label = evidence
-        return Decision(
-            t_s=t_end,
-            label=self._label,
-            raw_label=raw,
-            probabilities={c: float(v) for c, v in zip(self.model.class_names, p, strict=True)},
-            confidence=confidence,
-            window_s=self.model.window_s,
-            t_start_s=t_start,
-            distance=distance,
-        )
-
-    def _evidence_label(self, features: np.ndarray, p: np.ndarray, unlike: bool, raw: str) -> str:
-        """Add one window to the accumulated evidence; the label it supports (class docstring)."""
-        if self.evidence_tau_s == 0:
-            return raw
+        covered, coverage_distance = self.model.coverage.covers(point)
         lo, hi = self.excitation_range
         active = float(features[self._active_index])
         w = min(max((active - lo) / (hi - lo), 0.0), 1.0) if math.isfinite(active) else 0.0
-        if w > 0:
-            keep = math.exp(-w * self._hop_time_s / self.evidence_tau_s)
-            self._log_p = keep * self._log_p + w * np.log(np.maximum(p, 1e-9))
-            self._weight = keep * self._weight + w
-            self._unlike = keep * self._unlike + w * float(unlike)
-        if self._weight <= 0:
-            return raw
+        if w <= 0.0:
+            reason = LOW_EXCITATION
+        elif not covered:
+            reason = OUTSIDE_TRAINING
+        elif unlike:
+            reason = UNLIKE_CLASSES
+        else:
+            reason = self._add_evidence(p, w)
+        label = self._label if reason == "" else UNKNOWN
+        confidence = self._probability_of(label) if label != UNKNOWN else float(p[best])
+        evidence = self._cusum
+        return Decision(
+            t_s=t_end,
+            label=label,
+            raw_label=raw,
+            probabilities={c: float(v) for c, v in zip(self.model.class_names, p, strict=True)},
+            confidence=min(max(confidence, P_MIN), 1.0 - P_MIN),
+            window_s=self.model.window_s,
+            t_start_s=t_start,
+            distance=distance,
+            reason=reason if label == UNKNOWN else "",
+            covered=covered,
+            coverage_distance=coverage_distance,
+            fault_evidence=evidence,
+            fault_candidate=self._fault_candidate() if evidence > 0.0 else "",
+            fault_threshold=self.threshold,
+        )
+
+    def _add_evidence(self, p: np.ndarray, w: float) -> str:
+        """Add one informative window (probabilities (C,), weight 0..1); set the label; return
+        the reason it is unknown, or ``""``."""
+        fault_p = float(p[self._faults].sum())
+        llr = math.log(fault_p) - math.log(1.0 - fault_p) + self._prior_log_ratio
+        step = w * self._gamma * min(max(llr, -LLR_CLIP), LLR_CLIP)
+        self._cusum = min(max(self._cusum + step, 0.0), 2.0 * self.threshold)
+        keep = math.exp(-w * self._hop_time_s / self.evidence_tau_s) if self.evidence_tau_s else 0
+        self._log_p = keep * self._log_p + w * np.log(p)
+        self._weight = keep * self._weight + w
+        if self._declared:
+            self._clear = max(self._clear - step, 0.0)
+            if self._clear >= self.threshold:
+                self._declared = False
+                self._cusum = 0.0
+                self._clear = 0.0
+        elif self._cusum >= self.threshold:
+            self._declared = True
+            self._clear = 0.0
+        if self._declared:
+            self._label = self._fault_candidate()
+            self._recent.clear()
+            return ""
+        q = self._evidence_probabilities()
+        healthy = np.where(self._faults, -1.0, q)
+        candidate = self.model.class_names[int(np.argmax(healthy))]
+        if float(q[~self._faults].sum()) < self.unknown_threshold:
+            self._recent.clear()
+            self._label = UNKNOWN
+            return EVIDENCE_PENDING
+        self._recent.append(candidate)
+        if self._label in FAULT_CLASSES or self._label == UNKNOWN:
+            self._label = candidate  # no healthy label yet, or a fault just cleared
+        elif len(self._recent) == self.hysteresis and len(set(self._recent)) == 1:
+            self._label = candidate
+        return ""
+
+    def _fault_candidate(self) -> str:
+        """The fault class with the largest accumulated evidence."""
+        faults = np.where(self._faults, self._log_p, -np.inf)
+        return self.model.class_names[int(np.argmax(faults))]
+
+    def _evidence_probabilities(self) -> np.ndarray:
+        """Softmax (C,) of the weighted mean log-probability of the informative windows."""
         mean = self._log_p / self._weight
         q = np.exp(mean - mean.max())
-        q /= q.sum()
-        best = int(np.argmax(q))
-        if self._unlike / self._weight > 0.5 or q[best] < self.unknown_threshold:
-            return UNKNOWN
-        return self.model.class_names[best]
+        return q / q.sum()
+
+    def _probability_of(self, label: str) -> float:
+        if self._weight <= 0.0:
+            return 0.0
+        return float(self._evidence_probabilities()[self.model.class_names.index(label)])

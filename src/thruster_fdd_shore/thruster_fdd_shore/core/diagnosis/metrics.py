@@ -33,18 +33,35 @@ def classification_metrics(probs: np.ndarray, y: np.ndarray, n_classes: int) -> 
     """Accuracy, balanced accuracy, NLL and expected calibration error (10 bins) of (m, C)."""
     pred = probs.argmax(axis=1)
     recalls = [float(np.mean(pred[y == c] == c)) for c in range(n_classes) if np.any(y == c)]
-    conf = probs.max(axis=1)
-    bins = np.minimum((conf * 10).astype(int), 9)
-    ece = sum(
-        abs(float(np.mean(pred[bins == b] == y[bins == b])) - float(conf[bins == b].mean()))
-        * float(np.mean(bins == b))
-        for b in range(10)
-        if np.any(bins == b)
-    )
     return {
         "accuracy": float(np.mean(pred == y)),
         "balanced_accuracy": float(np.mean(recalls)),
         "nll": float(-np.mean(np.log(probs[np.arange(len(y)), y] + 1e-12))),
-        "ece": float(ece),
+        "ece": expected_calibration_error(probs, y),
         "windows": len(y),
     }
+
+
+def reliability(probs: np.ndarray, y: np.ndarray, bins: int = 10) -> list[dict[str, float]]:
+    """Reliability table of probabilities (m, C) against labels (m,): per non-empty bin of the
+    top-class probability (equal widths on 0..1) its mean confidence, accuracy and share."""
+    pred = probs.argmax(axis=1)
+    conf = probs.max(axis=1)
+    index = np.minimum((conf * bins).astype(int), bins - 1)
+    return [
+        {
+            "confidence": float(conf[index == b].mean()),
+            "accuracy": float(np.mean(pred[index == b] == y[index == b])),
+            "share": float(np.mean(index == b)),
+        }
+        for b in range(bins)
+        if np.any(index == b)
+    ]
+
+
+def expected_calibration_error(probs: np.ndarray, y: np.ndarray, bins: int = 10) -> float:
+    """Expected calibration error: |accuracy - confidence| of ``reliability``'s bins, weighted
+    by their share of windows."""
+    return float(
+        sum(abs(r["accuracy"] - r["confidence"]) * r["share"] for r in reliability(probs, y, bins))
+    )

@@ -10,7 +10,12 @@ import numpy as np
 
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.diagnosis.model import ClassifierModel
-from thruster_fdd.core.diagnosis.stream import EVIDENCE_TAU_S, Decision, DiagnosisStream
+from thruster_fdd.core.diagnosis.stream import (
+    EVIDENCE_TAU_S,
+    FALSE_ALARMS_PER_HOUR,
+    Decision,
+    DiagnosisStream,
+)
 from thruster_fdd.core.errors import ModelMismatchError
 from thruster_fdd.core.labels import FAULT_CLASSES, UNKNOWN
 from thruster_fdd.core.nominal.residuals import ResidualStream
@@ -41,6 +46,7 @@ def trace_decisions(
     hysteresis: int = 2,
     unknown_threshold: float | None = None,
     evidence_tau_s: float = EVIDENCE_TAU_S,
+    false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
 ) -> list[Decision]:
     """Run a trace sample by sample through ResidualStream and DiagnosisStream.
 
@@ -55,6 +61,7 @@ def trace_decisions(
         hysteresis=hysteresis,
         unknown_threshold=unknown_threshold,
         evidence_tau_s=evidence_tau_s,
+        false_alarms_per_hour=false_alarms_per_hour,
     )
     decisions = []
     columns = (trace.t, trace.command, trace.voltage, trace.rpm, trace.current)
@@ -128,13 +135,23 @@ def summarize_decisions(decisions: list[Decision]) -> dict:
             "raw_label": d.raw_label,
             "confidence": d.confidence,
             "probabilities": d.probabilities,
+            "reason": d.reason,
+            "covered": d.covered,
+            "fault_evidence": d.fault_evidence,
+            "fault_candidate": d.fault_candidate,
         }
         for d in decisions
     ]
+    reasons: dict[str, int] = {}
+    for d in decisions:
+        if d.reason:
+            reasons[d.reason] = reasons.get(d.reason, 0) + 1
     return {
         "overall": overall_label(decisions),
         "events": label_events(decisions),
         "first_fault": first_fault(decisions),
+        "unknown_reasons": reasons,
+        "fault_threshold": decisions[0].fault_threshold if decisions else None,
         "windows": windows,
     }
 
@@ -160,8 +177,9 @@ def diagnose_trace(
         ``{"start", "overall": {"label", "confidence"}, "events": [{"t", "label",
         "confidence"}], "first_fault": {"label", "t", "onset_t"} or None, "windows":
         [{"t_start", "t_end", "label", "raw_label", "confidence", "probabilities": {class:
-        p}}]}`` (docs/contracts.md keys; times in s on the trace's clock, ``start`` its first
-        sample).
+        p}, "reason", "covered", "fault_evidence", "fault_candidate"}], "unknown_reasons":
+        {reason: windows}, "fault_threshold"}`` (docs/contracts.md keys; times in s on the
+        trace's clock, ``start`` its first sample).
 
     Raises
     ------

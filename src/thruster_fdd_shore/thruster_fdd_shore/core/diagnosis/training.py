@@ -27,8 +27,10 @@ from thruster_fdd.core.artifact import (
     weights_bytes,
 )
 from thruster_fdd.core.atomic import replaced_dir
+from thruster_fdd.core.diagnosis.coverage import MAX_POINTS, OPERATING_POINT, RESOLUTION, Coverage
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, WINDOW_SIGNALS
 from thruster_fdd.core.diagnosis.model import (
+    COVERAGE_ARRAY,
     KIND,
     Z_CLIP,
     ClassifierCard,
@@ -43,7 +45,11 @@ from thruster_fdd.core.labels import CLASS_NAMES
 from thruster_fdd.core.nominal.residuals import ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.traces.data import Trace
-from thruster_fdd_shore.core.diagnosis.metrics import classification_metrics
+from thruster_fdd_shore.core.diagnosis.metrics import (
+    classification_metrics,
+    expected_calibration_error,
+    reliability,
+)
 from thruster_fdd_shore.core.nominal.export import state_arrays
 
 DEFAULT_WINDOW_S = 20.0
@@ -118,6 +124,13 @@ class ClassifierConfig:
         every trace is.
     holdout_fraction : float
         Time-split fraction (see above).
+    holdout_units : int
+        With traces of >= 2 units (``Trace.thruster_id``), every this-many-th unit (at least
+        one) is held out whole: its windows calibrate the probabilities, the unknown distance
+        and the coverage threshold, so that they hold on units the network was not fitted to.
+    coverage_quantile : float
+        Quantile of the held-out windows' distance to the training region that sets the
+        coverage threshold (``diagnosis.coverage``).
     """
 
     window_s: float = DEFAULT_WINDOW_S
@@ -131,6 +144,8 @@ class ClassifierConfig:
     distance_margin: float = 1.5
     holdout_every: int = 4
     holdout_fraction: float = 0.25
+    holdout_units: int = 3
+    coverage_quantile: float = 0.99
 
 
 @dataclass(frozen=True)
@@ -147,6 +162,8 @@ class WindowSet:
         Index of the trace each window comes from.
     t_start, t_end : np.ndarray, shape (m,)
         Window times, s.
+    point : np.ndarray, shape (m, 4)
+        Operating point of each window (``coverage.OPERATING_POINT``).
     """
 
     x: np.ndarray
@@ -154,11 +171,17 @@ class WindowSet:
     trace: np.ndarray
     t_start: np.ndarray
     t_end: np.ndarray
+    point: np.ndarray
 
     def subset(self, mask: np.ndarray) -> WindowSet:
         """The windows where ``mask`` (m,) is True."""
         return WindowSet(
-            self.x[mask], self.y[mask], self.trace[mask], self.t_start[mask], self.t_end[mask]
+            self.x[mask],
+            self.y[mask],
+            self.trace[mask],
+            self.t_start[mask],
+            self.t_end[mask],
+            self.point[mask],
         )
 
 
@@ -182,7 +205,7 @@ def trace_windows(
     """
     n = round(window_s / nominal.sample_time_s)
     hop = max(1, round(hop_s / nominal.sample_time_s))
-    xs, ys, ids, t0s, t1s = [], [], [], [], []
+    xs, ys, ids, t0s, t1s, points = [], [], [], [], [], []
     index = {c: i for i, c in enumerate(CLASS_NAMES)}
     for k, tr in enumerate(tqdm(traces, desc="window features", disable=not progress)):
         labels = tr.sample_labels()
@@ -200,7 +223,7 @@ def trace_windows(
             out = windows.push(t, (c, v, r, i, s.residual_rpm, s.residual_current_a), s.valid)
             if out is None:
                 continue
-            t0, t1, f = out
+            t0, t1, f, point = out
             lo, hi = np.searchsorted(tr.t, [t0, t1], side="left")
             window_labels = set(labels[lo : hi + 1].tolist())
             if len(window_labels) != 1:
@@ -210,12 +233,18 @@ def trace_windows(
             ids.append(k)
             t0s.append(t0)
             t1s.append(t1)
+            points.append(point)
     if not xs:
         raise BadInputError(
             f"no trace is long enough for one {window_s:g} s window of valid samples"
         )
     return WindowSet(
-        np.asarray(xs), np.asarray(ys), np.asarray(ids), np.asarray(t0s), np.asarray(t1s)
+        np.asarray(xs),
+        np.asarray(ys),
+        np.asarray(ids),
+        np.asarray(t0s),
+        np.asarray(t1s),
+        np.asarray(points),
     )
 
 
@@ -224,11 +253,17 @@ def holdout_mask(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Held-out (calibration) and dropped windows, each a bool mask (m,).
 
-    Whole traces are held out when a class has >= 3 traces, else each trace's last
+    With traces of >= 2 units, whole units are held out (``holdout_units``). Otherwise whole
+    traces are held out when a class has >= 3 traces, else each trace's last
     ``holdout_fraction``; with the time split, windows across the split are dropped.
     """
     held = np.zeros(len(windows.y), dtype=bool)
     dropped = np.zeros(len(windows.y), dtype=bool)
+    units = sorted({tr.thruster_id for tr in traces if tr.thruster_id})
+    if len(units) >= 2 and all(tr.thruster_id for tr in traces):
+        chosen = set(units[config.holdout_units - 1 :: config.holdout_units] or units[-1:])
+        by_trace = np.array([traces[k].thruster_id in chosen for k in range(len(traces))])
+        return by_trace[windows.trace], dropped
     by_class: dict[int, list[int]] = {}
     for k in np.unique(windows.trace):
         by_class.setdefault(int(np.bincount(windows.y[windows.trace == k]).argmax()), []).append(k)
@@ -268,6 +303,30 @@ def fit_temperature(logits: np.ndarray, y: np.ndarray) -> float:
 
     res = minimize_scalar(nll, bounds=(-3.0, 3.0), method="bounded")
     return float(math.exp(res.x))
+
+
+def training_coverage(
+    train: WindowSet, held: WindowSet, quantile: float
+) -> tuple[Coverage, dict[str, Any]]:
+    """The coverage of the training windows' operating points, its threshold the ``quantile``
+    of the held-out windows' distance (at least one resolution unit), and the card entry."""
+    rng = np.random.default_rng(0)
+    points = train.point
+    if len(points) > MAX_POINTS:
+        points = points[np.sort(rng.choice(len(points), MAX_POINTS, replace=False))]
+    resolution = np.array([RESOLUTION[name] for name in OPERATING_POINT])
+    probe = Coverage(points=points / resolution, resolution=resolution, threshold=math.inf)
+    held_distance = probe.distance(held.point)
+    threshold = max(float(np.quantile(held_distance, quantile)), 1.0)
+    coverage = Coverage(points=points / resolution, resolution=resolution, threshold=threshold)
+    entry = {
+        "coordinates": list(OPERATING_POINT),
+        "resolution": resolution.tolist(),
+        "threshold": threshold,
+        "quantile": quantile,
+        "summary": coverage.summary(),
+    }
+    return coverage, entry
 
 
 def fit_mlp(
@@ -374,6 +433,15 @@ def train_classifier(
         logit_train = net(torch.tensor(x_train, dtype=torch.float32)).double().numpy()
         logit_val = net(torch.tensor(x_val, dtype=torch.float32)).double().numpy()
     temperature = fit_temperature(logit_val, val.y)
+    coverage, coverage_entry = training_coverage(train, val, config.coverage_quantile)
+    p_val = softmax(logit_val / temperature)
+    calibration = {
+        "units": sorted({traces[k].thruster_id for k in np.unique(val.trace)} - {""}),
+        "windows": len(val.y),
+        "ece_uncalibrated": expected_calibration_error(softmax(logit_val), val.y),
+        "ece": expected_calibration_error(p_val, val.y),
+        "reliability": reliability(p_val, val.y),
+    }
     z_train = np.clip((x_train - center) / scale, -1e6, 1e6)
     class_mean, class_std = class_statistics(z_train, train.y, len(CLASS_NAMES))
     z_val = (x_val - center) / scale
@@ -412,6 +480,9 @@ def train_classifier(
         window_s=config.window_s,
         temperature=temperature,
         unknown=unknown,
+        coverage=coverage,
+        coverage_entry=coverage_entry,
+        calibration=calibration,
         hidden=config.hidden,
         digest=training_digest(traces),
         metrics=metrics,
@@ -428,6 +499,9 @@ def export_classifier(
     window_s: float,
     temperature: float,
     unknown: dict[str, Any],
+    coverage: Coverage,
+    coverage_entry: dict[str, Any],
+    calibration: dict[str, Any],
     hidden: tuple[int, ...],
     digest: str,
     metrics: dict[str, Any],
@@ -451,6 +525,7 @@ def export_classifier(
     example = torch.zeros(2, len(FEATURE_NAMES))
     program = torch.export.export(net, (example,), dynamic_shapes={"x": {0: batch}})
     arrays = state_arrays(program.state_dict)
+    arrays[COVERAGE_ARRAY] = coverage.points * coverage.resolution
     h = hashlib.sha256()
     for name, arr in sorted(arrays.items()):
         h.update(name.encode())
@@ -478,6 +553,8 @@ def export_classifier(
         nominal_model_id=nominal.model_id,
         temperature=float(temperature),
         unknown=unknown,
+        coverage=coverage_entry,
+        calibration=calibration,
         extra=extra,
     )
     if out_dir is None:

@@ -9,7 +9,7 @@ import numpy as np
 
 from thruster_fdd.core.errors import BadInputError
 
-SIGNAL_FORMS = ("steps", "sine:F", "chirp", "multilevel", "mission")
+SIGNAL_FORMS = ("steps", "sine:F", "chirp", "multilevel", "mission", "patrol")
 """Accepted ``spec`` forms of ``make_signal`` (F is a frequency in Hz)."""
 
 
@@ -40,7 +40,9 @@ def make_signal(
         ``"steps"`` (the paper's 0.25 steps, each held ``STEP_HOLD_S``), ``"sine:F"`` (amplitude
         1, F in Hz), ``"chirp"`` (linear 0.01 -> 0.1 Hz over the duration, amplitude 1),
         ``"multilevel"`` (random levels held 2-15 s), ``"mission"`` (transit plateaus,
-        station keeping, reversals, idle).
+        station keeping, reversals, idle), ``"patrol"`` (a resident vehicle's long patrol:
+        idle holds, creeping at small commands, long cruise legs, turns, short reversals,
+        every change ramped).
     duration_s : float
         Signal length, s, > 0.
     rate_hz : float
@@ -81,6 +83,8 @@ def make_signal(
         command = _hold_pieces(t, lambda: (rng.uniform(-1.0, 1.0), rng.uniform(2.0, 15.0)))
     elif spec == "mission":
         command = _mission(t, rng)
+    elif spec == "patrol":
+        command = _patrol(t, rng)
     else:
         raise BadInputError(
             f"unknown signal spec {spec!r}; expected one of {', '.join(SIGNAL_FORMS)}"
@@ -141,4 +145,47 @@ def _mission(t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
             command[sel] = 0.0
             level = 0.0
         start += hold
+    return command
+
+
+PATROL_SLEW_PER_S = 0.1
+"""Largest command change per second of ``patrol`` (a vehicle's controller ramps thrust)."""
+
+
+def _patrol(t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A long patrol: a random sequence of idle holds (10-90 s), creeping (|command| 0.05-0.2,
+    20-120 s), cruise legs (0.35-0.85, 60-400 s), turns (a cruise level swung by up to 0.25
+    every 4-15 s, 30-120 s) and short reversals (-0.25..-0.7, 3-12 s), slew-limited to
+    ``PATROL_SLEW_PER_S``."""
+    target = np.zeros_like(t)
+    start = 0.0
+    cruise = 0.6
+    kinds = ["idle", "creep", "cruise", "turns", "reversal"]
+    while start <= t[-1]:
+        kind = rng.choice(kinds, p=[0.15, 0.2, 0.3, 0.2, 0.15])
+        if kind == "idle":
+            hold, level = rng.uniform(10.0, 90.0), 0.0
+        elif kind == "creep":
+            hold, level = rng.uniform(20.0, 120.0), rng.choice([-1, 1]) * rng.uniform(0.05, 0.2)
+        elif kind == "cruise":
+            cruise = rng.uniform(0.35, 0.85)
+            hold, level = rng.uniform(60.0, 400.0), cruise
+        elif kind == "reversal":
+            hold, level = rng.uniform(3.0, 12.0), -rng.uniform(0.25, 0.7)
+        else:
+            hold, level = rng.uniform(30.0, 120.0), None
+        sel = (t >= start) & (t < start + hold)
+        if level is None:
+            swings = _hold_pieces(
+                t[sel] - start, lambda: (rng.uniform(-0.25, 0.25), rng.uniform(4.0, 15.0))
+            )
+            target[sel] = np.clip(cruise + swings, 0.0, 1.0)
+        else:
+            target[sel] = level
+        start += hold
+    command = np.empty_like(target)
+    command[0] = target[0]
+    steps = np.diff(t, prepend=t[0]) * PATROL_SLEW_PER_S
+    for i in range(1, len(t)):
+        command[i] = command[i - 1] + np.clip(target[i] - command[i - 1], -steps[i], steps[i])
     return command
