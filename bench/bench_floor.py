@@ -1,6 +1,6 @@
 """Benchmark: the CPU floor of the vehicle set's ROS traffic alone, with nothing else done.
 
-Issue 15 asks for the vehicle set (drivers, models, health, recorder) at 8 thrusters x 50 Hz
+The target is the vehicle set (drivers, models, health, recorder) at 8 thrusters x 50 Hz
 within 0.2 cores. Whatever the nodes compute, they publish and take the contracted topics
 (docs/contracts.md) through rclpy and Fast DDS, and the recorder takes every one of them. This
 script measures that traffic by itself, in three processes of bare rclpy nodes that do no

@@ -7,7 +7,7 @@ the thrust coefficients by least squares, writes the preset YAML and a Markdown 
 Usage::
 
     python scripts/calibrate_t200.py [--data ../shared/data/t200] [--out PRESET.yaml]
-                                     [--table docs/t200_fit.md]
+                                     [--table out/t200_fit.md]
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ DEFAULT_OUT = (
     / "presets"
     / "t200.yaml"
 )
-DEFAULT_TABLE = REPO / "docs" / "t200_fit.md"
+DEFAULT_TABLE = REPO / "out" / "t200_fit.md"
 KGF_TO_N = 9.80665
 
 # Fitted parameters, in order, and the starting point (a previous fit; refined on every run).

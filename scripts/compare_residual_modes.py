@@ -1,10 +1,10 @@
 """Which NARX configuration's residuals separate the classes better: parallel or series-parallel.
 
-Issue 4 asks for the diagnosis to use the residuals that separate the six classes better. This
-builds the whole diagnosis twice with the same recipe and seeds, once per configuration, and
-scores each on thrusters neither saw in training (``classifier_eval.window_accuracy``: per-window
-balanced accuracy of the raw window answer and of the published decision, four command
-profiles, six unseen units):
+The diagnosis should use the residuals that separate the six classes better. This builds the
+whole diagnosis twice with the same recipe and seeds, once per configuration, and scores each
+on thrusters neither saw in training (``classifier_eval.window_accuracy``: per-window balanced
+accuracy of the raw window answer and of the published decision, four command profiles, six
+unseen units):
 
 - parallel (free run): the committed ``models/nominal`` and ``models/classifier``;
 - series-parallel (one step ahead from measured outputs): a nominal model made by

@@ -16,14 +16,16 @@ per family: exact naming, parameter error, gap shrink, model error (against the 
 noise-free response), and the false-positive rate of the null traces with a one-sided 95 %
 upper bound. Runs go to ``--workers`` processes, one run each. ``--json`` keeps each run's
 row, with how the search got there: the rivals of each choice, the named effects a later
-choice replaced, the base changes made and the pairs of effects taken together.
+choice replaced, the base changes made and the pairs of effects taken together. ``--out DIR``
+writes the tables as ``DIR/table.md`` and every run as ``DIR/runs.jsonl`` (with ``--table``:
+the table of that file only).
 
 Usage::
 
     python scripts/discrepancy_study.py [--family exact t100 t200] [--seeds 5] \
         [--first-seed 100] [--duration S] [--workers 2] [--cases null deadband ...] \
-        [--json runs.jsonl]
-    python scripts/discrepancy_study.py --table runs.jsonl
+        [--json runs.jsonl] [--out DIR]
+    python scripts/discrepancy_study.py --table runs.jsonl [--out DIR]
 """
 
 from __future__ import annotations
@@ -365,6 +367,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2, help="processes (default 2)")
     parser.add_argument("--json", type=Path, help="also append every run as a JSON line")
     parser.add_argument("--table", type=Path, help="only print the table of such a JSON file")
+    parser.add_argument("--out", type=Path,
+                        help="write table.md and runs.jsonl into this folder")  # fmt: skip
     parser.add_argument(
         "--cases",
         nargs="+",
@@ -374,7 +378,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     if args.table:
-        print(table([json.loads(line) for line in args.table.read_text().splitlines()]))
+        rows = [json.loads(line) for line in args.table.read_text().splitlines()]
+        print(table(rows))
+        _write_out(args.out, rows, table(rows))
         return 0
     jobs = []
     for family in args.family:
@@ -401,12 +407,24 @@ def main(argv: list[str] | None = None) -> int:
             if args.json:
                 with args.json.open("a") as f:
                     f.write(json.dumps(row) + "\n")
-    print(table(rows))
-    print(
+    text = table(rows)
+    print(text)
+    footer = (
         f"{len(rows)} runs, {time.perf_counter() - t0:.0f} s wall in {args.workers} processes "
         f"(load average at start {load:.2f})."
     )
+    print(footer)
+    _write_out(args.out, rows, f"{text}\n\n{footer}")
     return 0
+
+
+def _write_out(out: Path | None, rows: list[dict], text: str) -> None:
+    """The study's result as files: ``table.md`` (Markdown) and ``runs.jsonl`` (one run a line)."""
+    if out is None:
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table.md").write_text(text + "\n")
+    (out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The effectiveness estimate against the simulator's true thrust (README, "Thrust available").
+"""The effectiveness estimate against the simulator's true thrust (docs/diagnosis.md).
 
 For every case (healthy at the three class voltages; the severity sweep of
 ``core.sim.plant.SEVERITY_SWEEP``: half a blade to two, light to very heavy fouling) and every
@@ -24,7 +24,7 @@ Usage (after ``. scripts/bootstrap.sh``)::
         [--structural] [--onset 120 --settle 0] [--t200 ../shared/data/t200]
         [--plot docs/img/effectiveness.png] [--replot RUNS_JSON]
 
-Writes ``OUT/runs.json`` (every run's errors) and prints a Markdown table.
+Writes ``OUT/runs.json`` (every run's errors) and ``OUT/table.md`` (the Markdown table it prints).
 """
 
 from __future__ import annotations

@@ -8,8 +8,8 @@ bytes, cuts the file, does both, or splices 50 bytes from elsewhere, then reads 
 or refuse with BadInputError; any sample that differs from what was written, or any other
 exception, is a bug: the script prints it, keeps the file and exits 1. Then ``--payloads``
 random CDR payloads go through the EscTelemetry, Residual and Diagnosis decoders of
-``read_mcap``; each must decode or raise one of ``mcap_io.DECODE_ERRORS``. The counts go into
-the README's "Reliability" section.
+``read_mcap``; each must decode or raise one of ``mcap_io.DECODE_ERRORS``. It prints the
+counts.
 
     python scripts/fuzz_readers.py --seed 1 --cases 3000 --payloads 20000   # about 3 min
 """

@@ -6,7 +6,7 @@ PACKAGE = "thruster_fdd_shore"
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version="0.2.0",
     packages=find_packages(exclude=["test"]),
     package_data={"thruster_fdd_shore.core.sim": ["presets/*.yaml"]},
     data_files=[

@@ -1,9 +1,8 @@
-"""The command line as a clumsy user or an attacker meets it (issue 16, items 1, 5, 6, 7, 8).
+"""The command line as a clumsy user or an attacker meets it.
 
 Every bad input gives exit 2 and one line on stderr naming the input (never a traceback);
 damaged recordings are read in part with one warning line; a tampered model never runs code;
-a failed export leaves the model it was to replace. The cases are counted in the README's
-"Reliability" section: keep the tables and the README together.
+a failed export leaves the model it was to replace.
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """Adversarial files: damaged recordings, files that are not recordings, traces in wrong units.
 
-Issue 16 items 6 and 7 (readers): every reader takes what a damaged recording still holds, with
-one warning saying how much was lost, never returns a sample that differs from what was written,
-and refuses with BadInputError what is not a recording or a trace. Counted in the README's
-"Reliability" section.
+Every reader takes what a damaged recording still holds, with one warning saying how much was
+lost, never returns a sample that differs from what was written, and refuses with
+BadInputError what is not a recording or a trace.
 """
 
 from __future__ import annotations

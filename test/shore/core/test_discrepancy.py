@@ -123,10 +123,8 @@ def _run_superfluous() -> tuple:
 
 WEAK_NULL = 479
 """A null trace (exact base, ``lowspeed`` signal: little current) that hardly excites two
-effects of the start which the unit has: the 0.03 ohm sag (fitted to 2e-5 +- 0.006 and called
-superfluous before the claim test, the seventh session's fresh exact study, seeds 400-439,
-while the supply reconstruction padded its window with the end samples) and the 14 A current
-limit, which it never reaches."""
+effects of the start which the unit has: the 0.03 ohm sag (fitted to 2e-5 +- 0.006) and the
+14 A current limit, which it never reaches. Neither may be called superfluous."""
 
 
 def _run_weak() -> tuple:
@@ -309,8 +307,8 @@ def test_nothing_is_named_at_the_noise_level() -> None:
     """t200 mismatch 738 (a coarse speed sensor, no drive saturation), the start holding a
     0.034 deadband the thruster lacks: fitted to 0.013, it gains 15 % of the excess of the
     model without it (0.97 against 0.92, a BIC lower by 2279), but that model is at the noise
-    level already, where the search begins no round, so it is superfluous (0.86 once
-    dropped)."""
+    level already, where the search begins no round, so the deadband is superfluous (0.86
+    without it)."""
     result, test, _ = _only_superfluous(738, "deadband", preset="t200")
     assert test.contradicted
     assert test.without.gap.score <= 1.0
@@ -440,8 +438,8 @@ def test_study_visibility_tells_a_hidden_effect_that_does_not_act(load_script) -
     """The study's visibility of a hidden effect: how far removing it moves the unit's
     noise-free response. An exact-family current limit that the trace's current never
     reaches (seed 569, 9 A on its ``reversals`` levels) has none; a hidden dead time has
-    thousands of noise variances. Seed 1288's limit is reached only in held-out blocks: the
-    fit samples do not see it (no calibration can fit it there)."""
+    thousands of noise variances. A limit reached only in held-out blocks (seed 1288) is
+    invisible on the fit samples, where no calibration can fit it."""
     study = load_script("discrepancy_study")
     for hidden, least, most in (("current_limit", 0.0, 0.01), ("dead_time", 100.0, np.inf)):
         case = make_case((hidden,), 569, duration_s=60.0)
@@ -504,9 +502,10 @@ def test_second_esc_stage_starts_from_a_grid_and_is_accepted_like_an_effect() ->
 
 
 def test_the_other_braking_law_is_accepted_like_an_effect() -> None:
-    """A switch of the model's own form with no parameter, held to an effect's ``MIN_GAIN``
-    (t200 mismatch null trace 914, a coasting thruster: coasting removes 47 % of the calibrated
-    start's excess, under ``BASE_GAIN``, and a deadband at 30 % was named instead)."""
+    """A switch of the model's own form with no parameter is held to an effect's ``MIN_GAIN``:
+    on t200 mismatch null trace 914 (a coasting thruster) coasting removes 47 % of the
+    calibrated start's excess, under ``BASE_GAIN``, more than any effect (a deadband: 30 %), and
+    is adopted."""
     case = make_mismatch_case((), 914, preset="t200")
     assert "no_regen" in case.switches
     data = prepare_measured(case.trace, case.start)
@@ -520,10 +519,10 @@ def test_the_other_braking_law_is_accepted_like_an_effect() -> None:
 
 
 def test_a_candidate_whose_short_refit_is_unfinished_is_judged_after_a_full_one() -> None:
-    """t100 mismatch tuning seed 9 (second-order ESC, drive saturation, winding loss; a
-    0.45 s dead time and a current limit hidden): the dead time's 6-iteration re-fit carries
-    the fit samples (its own gain 3.7) while the held-out error grows (70 -> 94); fitted on,
-    it removes most of the excess and is accepted."""
+    """t100 mismatch seed 9 (second-order ESC, drive saturation, winding loss; a 0.45 s dead
+    time and a current limit hidden): the dead time's 6-iteration re-fit carries the fit
+    samples (its own gain 3.7) while the held-out error grows (70 -> 94); fitted on to a full
+    calibration it removes most of the excess and is accepted."""
     case = make_mismatch_case(("dead_time", "current_limit"), 9)
     data = prepare_measured(case.trace, case.start)
     start = calibrate(case.start, data)
@@ -557,8 +556,8 @@ def test_two_effects_that_pass_only_together_are_named(tmp_path: Path) -> None:
 
 def test_drive_losses_are_fitted_only_once_adopted() -> None:
     """The drive-loss terms a start lacks are not calibrated until the search adopts them as a
-    base change (on traces of the start's own build they absorbed friction); the change frees
-    exactly those, and a start that has a term keeps it out of the change."""
+    base change (fitted on traces of the start's own build they absorb friction); the change
+    frees exactly those, and a start that has a term keeps it out of the change."""
     t100, t200 = load_config("t100"), load_config("t200")
     lean = free_parameters(t100)
     assert not set(DRIVE_LOSSES) & set(lean)
@@ -623,7 +622,7 @@ def test_a_choice_the_data_do_not_decide_is_reported() -> None:
 
 def test_a_widened_bound_goes_before_an_effect_it_ties_with() -> None:
     """Within 5 % a widened bound is taken before an effect of lower BIC (t200 mismatch seed
-    525: a deadband standing in for an out-of-range inertia), but not when clearly worse."""
+    525: a deadband would stand in for an out-of-range inertia), but not when clearly worse."""
     config = load_config("t100")
 
     def final(name: str, score: float, bic: float) -> tuple[Candidate, Fit, float]:
@@ -638,16 +637,13 @@ def test_a_widened_bound_goes_before_an_effect_it_ties_with() -> None:
 
 
 def test_a_widened_bound_as_good_as_the_round_best_is_accepted_like_an_effect() -> None:
-    """t200 mismatch null trace 1017 (``k_q`` 2.77 times the start's, nothing hidden), under
-    the noise level of the fifteenth session: ``k_q`` widened removed 39 % of the calibrated
-    start's excess, the round's best candidate but under ``BASE_GAIN``, and a viscous torque
-    (25 %) was named in its place. As the round's best it is held to an effect's
-    ``MIN_GAIN``, and so it is within ``SAME_CHOICE`` of the best (t200 mismatch 631: the
-    inertia widened 1.36 beside a deadband's 1.33, which was named; the widening is
-    cross-validated better). Where another candidate explains more (the T200 bench trace:
-    ``r_ohm`` widened 23 %, the start's winding loss re-fitted 62 %) it stays held to
-    ``BASE_GAIN``. (Since the noise level counts the coarse rpm sensor of 1017, the widening
-    removes 77 % there and passes either way; the trace names nothing.)"""
+    """A widened bound that is the round's best candidate, or within ``SAME_CHOICE`` of it, is
+    held to an effect's ``MIN_GAIN``, not ``BASE_GAIN``: on t200 mismatch null trace 1017
+    (``k_q`` 2.77 times the start's, nothing hidden) ``k_q`` widened explains more than any
+    effect, and a viscous torque in its place would be a stand-in; on t200 mismatch 631 the
+    inertia widened (1.36) ties with a deadband (1.33) and cross-validates better. Where another
+    candidate explains more (the T200 bench trace: ``r_ohm`` widened 23 %, the start's winding
+    loss re-fitted 62 %) the widening stays held to ``BASE_GAIN``. On 1017 nothing is named."""
     config = load_config("t200")
     widen = BaseChange("base: k_q within x4", {"params.k_q": WIDE_RANGE}, widened=True)
 
@@ -670,8 +666,8 @@ def test_a_widened_bound_as_good_as_the_round_best_is_accepted_like_an_effect() 
 
 def test_a_second_esc_stage_goes_before_a_dead_time_it_ties_with() -> None:
     """t100 mismatch null trace 782 (a 0.058 s second ESC stage, nothing hidden): a 0.045 s
-    dead time fits as well as the stage (held-out 1.00 both) with a lower BIC; taken first it
-    was named. The stage goes first, and nothing is named."""
+    dead time fits as well as the stage (held-out 1.00 both) with a lower BIC. The stage goes
+    first, and nothing is named."""
     case = make_mismatch_case((), 782)
     assert "second_order_esc" in case.switches
     assert not case.hidden
@@ -685,8 +681,8 @@ def test_a_second_esc_stage_goes_before_a_dead_time_it_ties_with() -> None:
 
 def test_a_start_winding_loss_unlike_the_thruster_is_refitted() -> None:
     """t200 mismatch null trace 586 (no drive saturation; a winding loss 0.6 times the
-    start's): with the start's loss kept, r_ohm went to its bound and a 0.038 deadband was
-    named (held-out 5.4). Re-fitted as a base change, the loss comes within 20 % of the
+    start's): with the start's loss kept, r_ohm goes to its bound and a 0.038 deadband stands
+    in (held-out 5.4). Re-fitted as a base change, the loss comes within 20 % of the
     thruster's (it trades a little with r_ohm) and nothing is named."""
     case = make_mismatch_case((), 586, preset="t200")
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
@@ -698,9 +694,9 @@ def test_a_start_winding_loss_unlike_the_thruster_is_refitted() -> None:
 
 def test_a_third_candidate_is_fully_calibrated_before_the_choice() -> None:
     """Exact-base seed 646 (a Coulomb torque and a voltage sag, 60 s): after the sag, the
-    torque's short re-fit came third (held-out 0.96, behind the drive losses' 0.84 and a
-    viscous torque's 0.94) and was not fully calibrated; the drive losses were taken and the
-    torque was not named. Fully calibrated it fits best (0.81), and both are named."""
+    torque's short re-fit comes third (held-out 0.96, behind the drive losses' 0.84 and a
+    viscous torque's 0.94). The three best are fully calibrated before the choice; the torque
+    then fits best (0.81), and both hidden effects are named."""
     case = make_case(("coulomb_friction", "voltage_sag"), 646, duration_s=60.0)
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert sorted(result.added) == ["coulomb_friction", "voltage_sag"]
@@ -709,9 +705,9 @@ def test_a_third_candidate_is_fully_calibrated_before_the_choice() -> None:
 
 def test_an_effect_active_in_the_held_out_blocks_accounts_for_its_gain_there() -> None:
     """Exact-base 1852 (an 8.8 A current limit, 60 s): the limit binds mostly in the held-out
-    blocks; its re-fit takes them from 23.9 to 0.72, but removed again it costs only 0.12 of
-    the excess on the fit samples, and nothing was named. On the held-out blocks it accounts
-    for the whole gain: it is named, within 1 %."""
+    blocks; its re-fit takes them from 23.9 to 0.72, while removing it again costs only 0.12 of
+    the excess on the fit samples. Its own share is counted where it is larger, on the
+    held-out blocks: it is named, within 1 %."""
     case = make_case(("current_limit",), 1852, duration_s=60.0)
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert result.added == ("current_limit",)
@@ -735,10 +731,10 @@ def test_the_coulomb_grid_reaches_torques_large_against_a_slow_trace() -> None:
 
 def test_a_coulomb_torque_beside_a_sag_is_not_taken_for_drive_losses() -> None:
     """Exact-base 200 (a 0.019 N m Coulomb torque and a 0.18 ohm sag on a ``lowspeed``
-    trace): with the supply reconstructed from the trace's end samples over the first and last
-    half-window, the hidden model itself scored 1.41 noise variances on the bus voltage, and the
-    drive losses with a deadband widened by 43 % fitted better (BIC -3557 against the torque's
-    -3540) and were taken. Both are named, and the model is close to the unit."""
+    trace): the supply is reconstructed without padding the rolling median with the end
+    samples (which would leave the hidden model itself at 1.41 noise variances on the bus
+    voltage and let the drive losses with a wider deadband fit better). Both effects are named,
+    and the model is close to the unit."""
     case = make_case(("coulomb_friction", "voltage_sag"), 200, duration_s=60.0)
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert sorted(result.added) == ["coulomb_friction", "voltage_sag"]
@@ -775,9 +771,9 @@ def test_folds_hold_out_every_block_once() -> None:
 
 
 def test_a_bic_barely_lower_is_not_evidence() -> None:
-    """Exact-base null trace 717 (multilevel, nothing missing): a slew limit lowered the BIC
-    by 0.5 and the held-out score from 1.16 to 1.05, and was named. Under ``BIC_EVIDENCE``
-    it is not accepted, and nothing is named."""
+    """Exact-base null trace 717 (multilevel, nothing missing): a slew limit lowers the BIC
+    by 0.5 and the held-out score from 1.16 to 1.05. Under ``BIC_EVIDENCE`` it is not accepted,
+    and nothing is named."""
     case = make_case((), 717, duration_s=60.0, signal="multilevel")
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert result.added == ()
@@ -786,10 +782,9 @@ def test_a_bic_barely_lower_is_not_evidence() -> None:
 
 def test_no_round_begins_at_the_noise_level() -> None:
     """Exact-base null trace 650 (lowspeed, nothing missing): the calibrated start scores
-    1.02 on the held-out blocks and the round's control re-fit 0.99. With no excess left, every
-    candidate's gain against the excess itself was ~1e10 (t200 mismatch 601: a deadband named
-    so, before a gain was counted against ``RIGHT_SPREAD``); the search stops there instead of
-    judging candidates."""
+    1.02 on the held-out blocks and the round's control re-fit 0.99. With no excess left, a
+    candidate's gain against the excess itself would be about 1e10; the search stops there
+    instead of judging candidates."""
     case = make_case((), 650, duration_s=60.0, signal="lowspeed")
     lines: list[str] = []
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False, log=lines.append)
@@ -803,11 +798,11 @@ def test_no_round_begins_at_the_noise_level() -> None:
 def test_a_gain_at_the_noise_level_is_counted_against_a_right_models_spread() -> None:
     """t200 mismatch trace 631 (inertia 2.45 times the start's, a hidden deadband; the
     simulated thruster itself scores 1.18 held-out): after the deadband and the widened
-    inertia a viscous torque took the model from 1.165 to 1.14, 15 % of the excess over 1, and
-    was named. Counted against ``RIGHT_SPREAD`` it is under ``MIN_GAIN``, while an effect that
-    is there and takes a start near the noise level to the truth still passes (exact-base
-    1188, a hidden viscous torque: 1.10 to 1.03), and far above the noise level the gain is
-    the fraction of the excess as before."""
+    inertia a viscous torque takes the model from 1.165 to 1.14, 15 % of the excess over 1.
+    Counted against ``RIGHT_SPREAD`` it is under ``MIN_GAIN``, while an effect that is there and
+    takes a start near the noise level to the truth still passes (exact-base 1188, a hidden
+    viscous torque: 1.10 to 1.03), and far above the noise level the gain is the fraction of
+    the excess."""
     assert RIGHT_SPREAD > 0.165
     assert _excess_gain(1.165, 1.14) < MIN_GAIN
     assert _excess_gain(1.10, 1.03) >= MIN_GAIN
@@ -816,10 +811,9 @@ def test_a_gain_at_the_noise_level_is_counted_against_a_right_models_spread() ->
 
 def test_a_simulation_that_blows_up_is_a_bad_finite_fit() -> None:
     """t100 mismatch 697 (a hidden deadband and voltage sag): in a round's control re-fit a
-    trial step made the simulation blow up to residuals huge but finite, so they were not
-    replaced; the finite-difference Jacobian overflowed and least squares failed in its
-    SVD ("array must not contain infs or NaNs"). Clipped at ``BLOWN_UP``, the run ends with
-    both effects named."""
+    trial step makes the simulation blow up to residuals huge but finite, which would overflow
+    the finite-difference Jacobian and fail least squares in its SVD. Clipped at ``BLOWN_UP``,
+    the run ends with both effects named."""
     case = make_mismatch_case(("deadband", "voltage_sag"), 697)
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert sorted(result.added) == ["deadband", "voltage_sag"]
@@ -858,7 +852,7 @@ def test_a_choice_is_made_again_against_an_effect_a_base_change_won_over() -> No
     start's, a hidden Coulomb torque): the torque is accepted in the round the drive losses
     win, then falls short of the gain against a deadband, which is named. Once k_q is
     widened the deadband's choice is made again against the torque too, which takes its
-    place (it was named a deadband, with nothing else)."""
+    place, and nothing else is named."""
     case = make_mismatch_case(("coulomb_friction",), 821, preset="t100")
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert result.added == ("coulomb_friction",)
@@ -869,9 +863,9 @@ def test_a_friction_torque_is_tried_together_with_the_other_braking_law(tmp_path
     """t100 mismatch 835 (a coasting rotor, drive saturation, inertia 2.2 times the start's,
     a hidden Coulomb torque and slew limit): coasting alone fits worse than the regenerative
     braking the start has (nothing but drag stops the rotor) and the torque alone leaves the
-    braking doing part of its work, so a deadband was named in its place. Tried together
-    they fit to the noise, and the torque is named with coasting adopted. report.md's gap
-    row of that round is the joint re-fit's, not the torque's alone."""
+    braking doing part of its work, so neither passes alone and a deadband would stand in.
+    Tried together they fit to the noise, and the torque is named with coasting adopted.
+    report.md's gap row of that round is the joint re-fit's, not the torque's alone."""
     case = make_mismatch_case(("coulomb_friction", "slew_rate_limit"), 835, preset="t100")
     result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert set(result.added) == {"coulomb_friction", "slew_rate_limit"}
@@ -890,9 +884,9 @@ def test_a_friction_torque_is_tried_together_with_the_other_braking_law(tmp_path
 def test_the_other_braking_law_needs_its_own_evidence_beside_a_friction_torque() -> None:
     """t100 mismatch 836 (a regenerating thruster with an idle-current law, a hidden Coulomb
     torque and slew limit): coasting alone raises the BIC; with the torque it fits 18 %
-    better than the torque alone, standing in for the slew limit's slow deceleration. It is
-    not taken, and the two hidden effects are named with nothing else (a viscous torque was
-    named beside them when the braking law needed no evidence of its own)."""
+    better than the torque alone, standing in for the slew limit's slow deceleration. Without
+    evidence of its own it is not taken, and the two hidden effects are named with nothing
+    else."""
     case = make_mismatch_case(("coulomb_friction", "slew_rate_limit"), 836, preset="t100")
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert set(result.added) == {"coulomb_friction", "slew_rate_limit"}
@@ -912,9 +906,8 @@ def test_a_choice_made_again_keeps_the_named_effect_in_a_tie_it_leads() -> None:
 
 def test_a_slew_limit_between_coarse_grid_points_is_named() -> None:
     """Exact-base 1244 (a 1.52 per s slew limit behind the 0.61 s lag, 60 s of reversals):
-    the fit has a narrow valley around the limit; from a grid of 1.2, 2.5, ... per s the
-    calibration started where the limit does not bind and nothing was named (held-out 27).
-    The dense grid names it within 2 %."""
+    the fit has a narrow valley around the limit, and a coarse grid (1.2, 2.5, ... per s)
+    starts the calibration where the limit does not bind. The dense grid names it within 2 %."""
     case = make_case(("slew_rate_limit",), 1244, duration_s=60.0)
     result, _ = run_workflow(case.trace, case.start, workers=1, progress=False)
     assert result.added == ("slew_rate_limit",)
@@ -1090,8 +1083,8 @@ def test_prepare_despikes_by_the_way_the_command_moved() -> None:
 def test_prepare_keeps_a_braking_dip_long_after_the_command() -> None:
     """A fast thruster's current dips for a sample when its reversing rotor brakes. Behind a
     0.95 s dead time that is 9 samples after the command's bend, but the speed moves sharply
-    with it, and the dip is kept (it was replaced by its neighbours' median: a residual of
-    200 noise std no model could explain, on every t200 mismatch trace with a dead time)."""
+    with it, and the dip is kept (replaced by its neighbours' median it would leave a residual
+    of 200 noise std that no model explains)."""
     config = set_effect(load_config("t200"), make_effect("dead_time", {"delay_s": 0.95}))
     t = np.arange(400) / 10.0
     u = np.where((t // 10.0) % 2 == 0, 0.7, -0.7)
@@ -1125,9 +1118,7 @@ def test_base_parameters_stay_near_the_anchor() -> None:
 def test_t200_bench_data_names_the_deadband(load_script) -> None:
     """Real data: all six T200 sheets as a step trace, the t200 preset without its deadband.
     The deadband is named, its width within 10 % of the preset's steady-state calibration
-    (scripts/calibrate_t200.py, an independent fit of the same sheets; issue 14's goal), and
-    nothing else. (Since the winding loss is re-fitted as a base change, 0.0310, 8.8 % off;
-    1.9 % before, with the held-out score twice as high.)"""
+    (scripts/calibrate_t200.py, an independent fit of the same sheets), and nothing else."""
     trace = load_script("t200_to_trace").steps_trace(T200_DATA)
     t200 = load_config("t200")
     result, _ = run_workflow(trace, t200, ["deadband"], workers=1, progress=False)
@@ -1259,7 +1250,7 @@ def test_reporting_floor_is_read_from_the_data() -> None:
 
 
 def test_out_folder_is_replaced_whole_or_refused(tmp_path, monkeypatch) -> None:
-    """The report replaces its folder at once: an earlier report is replaced, a folder with
+    """The report replaces its folder at once: an existing report is replaced, a folder with
     other files is refused before anything runs, and a failed write leaves the old one."""
     check_out_dir(tmp_path / "new")
     (tmp_path / "mine").mkdir()

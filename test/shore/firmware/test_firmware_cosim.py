@@ -130,7 +130,7 @@ class Rig:
             return bool(found)
 
         # Wall-clock bounds are generous: what is checked is in virtual time, and a loaded machine
-        # runs the co-simulation below real time (a 3 s bound failed once in a fresh clone).
+        # runs the co-simulation below real time (3 s is too short there).
         assert self.wait(received, WAIT_S), f"{data.hex()} never reached the bridge"
         return found[-1]
 
@@ -363,9 +363,8 @@ def test_the_firmware_decodes_a_damaged_stream_as_the_host_decoder_does(rig: Rig
         rig.send(segment)
         # Paced in virtual time from the bridge's receipt of each segment: a co-simulation
         # running below real time would otherwise get several segments at once, past the
-        # firmware's 64-byte receive ring (seen once), and a co-simulation thread that read
-        # the pty late would let the next segment follow before a servo frame showed this
-        # one (a fresh clone, 2026-11-28: 1420 us never pulsed).
+        # firmware's 64-byte receive ring, and a co-simulation thread that read the pty late
+        # would let the next segment follow before a servo frame showed this one.
         due = rig.chunk(segment).t_received + 0.06
         assert rig.wait(lambda due=due: rig.bridge.virtual_time >= due, WAIT_S)
     rig.wait_virtual(0.1)

@@ -1,6 +1,5 @@
-"""Adversarial bridge input: replayed and stale frames, resets, wrap, a stuck line, the link path.
-
-Issue 16 items 2, 3 and 8 (``emulate --link``); the README's "Reliability" section counts them.
+"""Adversarial bridge input: replayed and stale frames, resets, wrap, a stuck line, the link path
+of ``emulate --link``.
 """
 
 from __future__ import annotations
@@ -47,7 +46,7 @@ def _published(window: SequenceWindow, seqs: list[int]) -> list[int]:
 
 
 def test_the_issue_replay_is_published_once() -> None:
-    """Frames 0-9, then 5-9 again, then an old 3: each frame published once (was: every repeat)."""
+    """Frames 0-9, then 5-9 again, then an old 3: each frame is published once, no repeat."""
     window = SequenceWindow()
     seqs = list(range(10)) + list(range(5, 10)) + [3]
     assert _published(window, seqs) == list(range(10))

@@ -1,6 +1,6 @@
 """No published float is ever non-finite: the core paths behind each published message type,
-fed with NaN, inf, huge and random values (issue 16, item 4). ROS-free; the node-level checks
-are in test/nodes/test_adversarial_nodes.py.
+fed with NaN, inf, huge and random values. ROS-free; the node-level checks are in
+test/vehicle/nodes/test_adversarial_nodes.py.
 
 - EscTelemetry: what passes ``check_telemetry`` (the driver publishes nothing else) is finite,
   and so is the command it carries.

@@ -96,7 +96,8 @@ def _run(
 def test_effectiveness_against_true_thrust_on_unseen_units(
     reference: ThrustReference, family: str, severity: float
 ) -> None:
-    """Units 9001-9002 (never used to tune): the README table has the full study."""
+    """On units never used to tune the estimator (9001-9002), the effectiveness is within its
+    target of the simulator's true thrust (the full study: scripts/effectiveness_study.py)."""
     spec = severity_spec(family, severity) if severity else None
     errors, inside = [], []
     for seed in (9001, 9002):

@@ -1,4 +1,4 @@
-"""No published float is ever non-finite, checked on the messages themselves (issue 16, item 4).
+"""No published float is ever non-finite, checked on the messages themselves.
 
 ``residual_message`` (what ``nominal_model`` publishes) on any telemetry, property-based; then
 a real graph: ``nominal_model`` and ``classifier`` nodes fed telemetry with NaN, inf, huge

@@ -247,7 +247,7 @@ def test_driver_survived_everything(rig: Rig) -> None:
 
 
 def test_every_published_telemetry_field_is_finite(rig: Rig) -> None:
-    """After every link fault above (issue 16: no published field is ever non-finite)."""
+    """After every link fault above, no published telemetry field is non-finite."""
     assert len(rig.telemetry) > 20
     assert [m.sequence for m in rig.telemetry if non_finite_fields(m)] == []
 

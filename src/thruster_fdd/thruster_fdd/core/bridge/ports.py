@@ -1,9 +1,9 @@
 """Serial ports of a process, all read by one thread through one selector.
 
-An ESC driver per thruster used to block in a reader thread of its own; with every driver of
-a vehicle in one process, a single thread waits on all ports at once (``selectors``), hands each
-chunk of bytes with its host arrival time to the port's ``on_data`` callback, and re-opens a
-port that fails or vanishes. Writes (command frames) come from the caller's thread.
+With every driver of a vehicle in one process, a single thread waits on all ports at once
+(``selectors``), hands each chunk of bytes with its host arrival time to the port's ``on_data``
+callback, and re-opens a port that fails or vanishes. Writes (command frames) come from the
+caller's thread.
 
 Nothing here blocks its caller: ``open`` and ``close`` are carried out by the reader thread,
 which a self-pipe wakes.

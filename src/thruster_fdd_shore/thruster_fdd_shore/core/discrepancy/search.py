@@ -117,10 +117,10 @@ SECOND_STAGE = (0.03, 0.06, 0.12, 0.2, 0.3, 0.45)
 """Starting time constants of a second ESC stage, as fractions of the calibrated ``esc_lag``'s,
 which is shortened by as much (the cascade keeps the lag's mean delay); the start that fits the
 fit samples best is calibrated, as ``candidate_grid`` for an effect (the stages commute, so the
-second is taken as the faster). From a single start at 0.3 of the lag, the lag kept, the
-calibration stopped at a worse fit than a dead time standing in for the stage (a 0.085 s
-stage behind a 0.6 s lag, t100 tuning seed 11: held-out score 5.55 against the dead time's
-5.30; from the grid without shortening the lag 5.56, with it 4.91, the stage at 0.088 s)."""
+second is taken as the faster). From a single start with the lag kept, the calibration can
+stop at a worse fit than a dead time standing in for the stage (a 0.085 s stage behind a
+0.6 s lag: held-out score 5.55 against the dead time's 5.30; from this grid, the lag
+shortened, 4.91, the stage at 0.088 s)."""
 
 
 BASE_GAIN = 0.5
@@ -1280,13 +1280,11 @@ def _revisit(
     Returns the rival taken (its name, calibration and base change, None for an effect), or
     None if ``name`` stays.
 
-    The round chose on the base of its time: t200 mismatch 644 (a second-order ESC with a
-    0.06 s second stage, a coasting rotor) named a 0.047 s dead time, cross-validated 3.52,
-    over the second stage's 4.14; once coasting was adopted (1.08) the dead time still paid
-    against nothing (3.8 without it), but the stage in its place scored 1.06, cross-validated
-    1.14 against 1.16 (and a lower BIC), and named nothing (before the thirty-second
-    session's fixes of the held-out score; now t100 mismatch 912: a Coulomb torque named
-    first, a viscous torque in its place once the second stage and ``k_q`` were widened).
+    The round chose on the base of its time: on a thruster with a second-order ESC and a
+    coasting rotor a dead time can be named over the second stage while the model still
+    regenerates; once coasting is adopted the dead time still pays against nothing, but the
+    stage in its place fits better (t100 mismatch 912 likewise: a Coulomb torque named
+    first, a viscous torque in its place once the second stage and ``k_q`` are widened).
     A rival must cross-validate at least as well as ``name`` (a widening or second stage
     excepted, as in ``_choose``): the round already broke the tie by the BIC, and breaking it
     again on another base flips on noise (t100 mismatch 715, a hidden Coulomb torque and slew
@@ -1663,9 +1661,9 @@ def search(
         )
         added = [n for n in added if n not in gone]
         # Without the start's effect the base is another, as after a base change: a choice
-        # made beside it is made again (t200 mismatch 764 before the thirty-second session's
-        # fixes of the held-out score: a viscous torque named over the idle-current law the
-        # thruster has, while a superfluous dead time stood in for its second ESC stage).
+        # made beside it is made again (a viscous torque can be named over the idle-current
+        # law the thruster has while a superfluous dead time stands in for its second ESC
+        # stage).
         current, origin, ranges, added, swaps, lines = _choices_again(
             added, passed_over, current, origin, ranges, added, config, data,
             workers, progress, say,
