@@ -32,6 +32,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from thruster_fdd.core.traces.recording import BAG_METADATA, McapRecorder, RecordingPolicy
 from thruster_fdd.nodes.common import (
+    Limit,
     declare_parameters,
     diagnostics_publisher,
     publish_status,
@@ -58,6 +59,16 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("model_ids", "", "ids of the models running, written into the metadata (up fills it)"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
 )
+LIMITS: dict[str, Limit] = {
+    "discovery_period_s": (0.01, 60.0),
+    "max_file_mb": (0.001, 1.0e6),
+    "max_file_duration_s": (0.1, 1.0e6),
+    "chunk_kb": (1, 1_000_000),
+    "flush_period_s": (0.01, 3600.0),
+    "compression": ("zstd", "lz4", "none"),
+    "diagnostics_period_s": (0.01, 3600.0),
+}
+"""Ranges and allowed values in the descriptors (``ros2 param describe``, ``recorder --help``)."""
 
 
 def _software_version() -> str:
@@ -98,7 +109,7 @@ class Recorder(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("recorder", **node_kwargs)
-        declare_parameters(self, PARAMETERS)
+        declare_parameters(self, PARAMETERS, LIMITS)
         p = self.get_parameter
         self._include = re.compile(p("include").value)
         self._exclude = set(p("exclude").value)
