@@ -10,12 +10,25 @@
 # 4. the bridge firmware's toolchain check and co-simulation runner (npm ci in firmware/);
 # 5. the environment: venv, install/setup.bash, DDS kept on this machine.
 # Every step is a no-op when already done, so a second run takes seconds.
+#
+# Steps 1-4 run in a subshell with `set -euo pipefail` (a failure ends the subshell, never the
+# caller's shell); step 5 changes the caller's environment. The caller's shell options are
+# restored at the end: a user who sources this in a terminal keeps the shell they had, and
+# scripts/test and scripts/up, which set -euo pipefail themselves, still stop on the first
+# failure (a failed build returns its status, which ends them).
 
-set -euo pipefail
-
+# A command substitution runs without errexit (unless inherit_errexit): that one from $-.
+_tfdd_caller_options="$(set +o)"
+case $- in
+    *e*) _tfdd_caller_options+=$'\nset -e' ;;
+    *) _tfdd_caller_options+=$'\nset +e' ;;
+esac
 TFDD_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 TFDD_VENV="$TFDD_ROOT/.venv"
 TFDD_PYTHON="${TFDD_PYTHON:-python3.11}"
+
+_tfdd_build() {
+set -euo pipefail
 
 _tfdd_log() { printf '[bootstrap] %s\n' "$*" >&2; }
 
@@ -139,7 +152,28 @@ if [ ! -f "$fw_dir/node_modules/.tfdd-npm-$npm_hash" ]; then
     touch "$fw_dir/node_modules/.tfdd-npm-$npm_hash"
 fi
 # ---------------------------------------------------------------------------------------------
+}
 
-# DDS stays on this machine (loopback and shared memory) unless the user says otherwise.
-export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
-export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
+# Steps 1-4 in a subshell (not in a condition: bash ignores errexit there). With errexit on in
+# the caller (scripts/test, scripts/up) a failure ends the caller here, with its status.
+( _tfdd_build )
+_tfdd_status=$?
+unset -f _tfdd_build
+if [ "$_tfdd_status" -eq 0 ]; then
+    # 5. The environment, in the caller's shell. The venv's and colcon's setup scripts read
+    # unset variables.
+    set +u
+    # shellcheck disable=SC1091
+    . "$TFDD_VENV/bin/activate"
+    export AMENT_PREFIX_PATH="$VIRTUAL_ENV" CMAKE_PREFIX_PATH="$VIRTUAL_ENV"
+    # shellcheck disable=SC1091
+    . "$TFDD_ROOT/install/setup.bash"
+    # DDS stays on this machine (loopback and shared memory) unless the user says otherwise.
+    export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+    export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
+fi
+eval "$_tfdd_caller_options"
+unset _tfdd_caller_options
+# Sourced: return the status (a failed build leaves the shell as it was); run: exit with it.
+# shellcheck disable=SC2317
+return "$_tfdd_status" 2>/dev/null || exit "$_tfdd_status"

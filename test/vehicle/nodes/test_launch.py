@@ -8,6 +8,7 @@ emulated bridges serve the thrusters' ports from this process; a probe checks th
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -23,6 +24,8 @@ from thruster_fdd_shore.core.sim.config import load_config
 from thruster_fdd_shore.core.sim.physics import ThrusterSimulator
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+CONTRACTS = Path(__file__).resolve().parents[3] / "docs" / "contracts.md"
 
 NOT_BUILT = (
     "the ROS launch system is built from ../shared/vendor/ros2-launch-jazzy by "
@@ -52,13 +55,52 @@ sys.exit(service.run())
 """
 
 
+def contract_topics(thruster_ids: tuple[str, ...]) -> set[str]:
+    """Every topic of docs/contracts.md's topic tables, per-thruster ones for each id."""
+    text = CONTRACTS.read_text().split("## Topics", 1)[1].split("\n## ", 1)[0]
+    topics = set()
+    for name in re.findall(r"^\| `([^`]+)` \|", text, flags=re.MULTILINE):
+        if name.startswith("/"):
+            topics.add(name)
+        else:
+            topics |= {f"/thruster/{tid}/{name}" for tid in thruster_ids}
+    return topics
+
+
+def contract_statuses(thruster_ids: tuple[str, ...]) -> set[str]:
+    """Every ``/diagnostics`` status name of docs/contracts.md, ``<id>`` for each id."""
+    names = set()
+    for name in re.findall(r"`(thruster_fdd: [a-z_]+(?: <id>)?)`", CONTRACTS.read_text()):
+        if name.endswith(" <id>"):
+            names |= {name.replace("<id>", tid) for tid in thruster_ids}
+        else:
+            names.add(name)
+    return names
+
+
+def test_the_contract_lists_are_read() -> None:
+    topics = contract_topics(("a",))
+    assert {"/thruster/a/esc/telemetry", "/thruster_fdd/health", "/diagnostics"} <= topics
+    assert len(topics) == 6
+    assert contract_statuses(("a",)) == {
+        "thruster_fdd: esc a",
+        "thruster_fdd: nominal_model a",
+        "thruster_fdd: classifier a",
+        "thruster_fdd: recorder",
+        "thruster_fdd: health",
+    }
+
+
 def test_launch_file_starts_every_thruster_of_its_parameters_file(tmp_path: Path) -> None:
     pytest.importorskip("launch", reason=NOT_BUILT)
     pytest.importorskip("launch_ros", reason=NOT_BUILT)
     from ament_index_python.packages import get_package_share_directory
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import qos_profile_sensor_data
-    from thruster_fdd_msgs.msg import EscTelemetry, Residual
+    from thruster_fdd_msgs.msg import EscTelemetry, Residual, VehicleHealth
 
+    from thruster_fdd.nodes.common import RELIABLE_10
+    from thruster_fdd.nodes.health import HEALTH_QOS, HEALTH_TOPIC
     from thruster_fdd.nodes.nominal_model import RESIDUAL_QOS
 
     ids = ("la", "lb")
@@ -97,8 +139,18 @@ def test_launch_file_starts_every_thruster_of_its_parameters_file(tmp_path: Path
     )
     telemetry: dict[str, list] = {tid: [] for tid in ids}
     residuals: dict[str, list] = {tid: [] for tid in ids}
+    health: list = []
+    statuses: set[str] = set()
+    expected_statuses = contract_statuses(ids)
     try:
         with Probe("launch_probe") as probe:
+            probe.node.create_subscription(VehicleHealth, HEALTH_TOPIC, health.append, HEALTH_QOS)
+            probe.node.create_subscription(
+                DiagnosticArray,
+                "/diagnostics",
+                lambda m: statuses.update(s.name for s in m.status),
+                RELIABLE_10,
+            )
             for tid in ids:
                 probe.node.create_subscription(
                     EscTelemetry,
@@ -124,6 +176,8 @@ def test_launch_file_starts_every_thruster_of_its_parameters_file(tmp_path: Path
                 lambda: (
                     all(len(residuals[t]) >= 10 and len(telemetry[t]) >= 50 for t in ids)
                     and recording()
+                    and bool(health)
+                    and expected_statuses <= statuses
                 ),
                 60.0,
                 0.05,
@@ -144,8 +198,11 @@ def test_launch_file_starts_every_thruster_of_its_parameters_file(tmp_path: Path
         out[-3000:],
     )
     assert all(len(residuals[t]) >= 10 for t in ids), out[-3000:]
-    assert {f"/thruster/{t}/fdd/diagnosis" for t in ids} <= topics
+    assert contract_topics(ids) - topics == set(), out[-3000:]
     assert recorded, "the recorder did not subscribe to the telemetry"
+    assert health, f"nothing on {HEALTH_TOPIC}: {out[-3000:]}"
+    assert [h.thruster_id for h in health[-1].thrusters] == list(ids)
+    assert expected_statuses - statuses == set(), sorted(statuses)
     exits = [line.split() for line in out.splitlines() if line.startswith("exit ")]
-    assert len(exits) == 2, out[-3000:]
+    assert len(exits) == 3, out[-3000:]
     assert all(code == "0" for _, _, code in exits), out[-3000:]

@@ -220,3 +220,61 @@ def test_types_nobody_installed_are_recorded_and_the_recorder_lives(
         assert ours.msgcount >= 0.9 * sent
         assert ours.msgdef.data == ""
         assert "DiagnosticStatus" in by_topic["/diagnostics"].msgdef.data, "from rosbags"
+
+
+def test_publishers_that_appear_after_the_recorder_subscribed_give_their_qos(
+    tmp_path: Path,
+) -> None:
+    """Under ``up`` the drivers' publishers come after the nominal models' subscriptions: the
+    recorder subscribes a topic it sees through a subscriber only, and must take the QoS and
+    type hash of the publisher that appears later (metadata.yaml and the MCAP channel)."""
+    import yaml
+    from mcap.reader import make_reader
+    from rclpy.qos import qos_profile_sensor_data
+    from rosbags.rosbag2 import Reader
+    from thruster_fdd_msgs.msg import EscTelemetry
+
+    topic = "/thruster/late/esc/telemetry"
+    with Probe("recorder_late_probe") as probe:
+        probe.node.create_subscription(
+            EscTelemetry, topic, lambda _m: None, qos_profile_sensor_data
+        )
+        recorder = _start_recorder(tmp_path)
+        try:
+            subscribed = probe.spin_until(
+                lambda: any(
+                    info.node_name == "recorder"
+                    for info in probe.node.get_subscriptions_info_by_topic(topic)
+                ),
+                15.0,
+                0.05,
+            )
+            assert subscribed, "the recorder never subscribed to the subscriber-only topic"
+            pub = probe.node.create_publisher(EscTelemetry, topic, qos_profile_sensor_data)
+            probe.spin_until(lambda: pub.get_subscription_count() >= 2, 10.0, 0.05)
+            for seq in range(100):
+                pub.publish(EscTelemetry(thruster_id="late", sequence=seq))
+                probe.spin(0.01)
+            probe.spin(1.0)  # a discovery period or more
+        finally:
+            assert not stop_children({"recorder": recorder}, timeout_s=15.0), "no clean stop"
+    info = yaml.safe_load((tmp_path / "test" / "metadata.yaml").read_text())
+    (meta,) = [
+        t["topic_metadata"]
+        for t in info["rosbag2_bagfile_information"]["topics_with_message_count"]
+        if t["topic_metadata"]["name"] == topic
+    ]
+    assert meta["type_description_hash"].startswith("RIHS01_"), meta
+    (offered,) = meta["offered_qos_profiles"]
+    assert offered["reliability"] == "best_effort", offered
+    assert offered["durability"] == "volatile", offered
+    with Reader(tmp_path / "test") as bag:
+        (conn,) = [c for c in bag.connections if c.topic == topic]
+        assert conn.msgcount > 0
+        assert conn.digest.startswith("RIHS01_")
+    with (tmp_path / "test" / "test_0.mcap").open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    (channel,) = [c for c in summary.channels.values() if c.topic == topic]
+    assert "best_effort" in channel.metadata["offered_qos_profiles"], channel.metadata
+    assert channel.metadata["topic_type_hash"].startswith("RIHS01_")

@@ -3,17 +3,25 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
 from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.context import Context
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -21,7 +29,9 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
+from rclpy.utilities import remove_ros_args
 
+from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.lifetime import stop_with_parent
 
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -36,10 +46,167 @@ NO_PUB_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
 NO_SUB_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
 
 
-def declare_parameters(node: Node, parameters: Iterable[tuple[str, object, str]]) -> None:
-    """Declare ``(name, default, description)`` parameters with their descriptors."""
+Limit = tuple[float, float] | tuple[str, ...]
+"""What a parameter may be: ``(low, high)`` (inclusive, as a descriptor's range) for a number,
+the allowed values for a string."""
+
+SHARED_LIMITS: dict[str, Limit] = {
+    "diagnostics_period_s": (0.01, 3600.0),
+    "stale_after_s": (0.01, 3600.0),
+    "period_s": (0.01, 3600.0),
+    "hop_s": (0.01, 3600.0),
+    "hysteresis": (1, 100),
+    "unknown_threshold": (-1.0, 1.0e6),
+}
+"""Limits of parameters that mean the same in every node that has them (used where a node's
+module gives none of its own)."""
+
+_UNIT = re.compile(r", ([^\s,()]+)(?: \(.*\))?$")
+_KINDS = {bool: "bool", int: "integer", float: "double", str: "string", list: "string list"}
+_ARTICLES = {"integer": "an integer", "double": "a number", "bool": "true or false"}
+
+
+class BadParameterError(BadInputError):
+    """A parameter given to a node (``-p name:=value``, a parameters file) has the wrong type or
+    is out of its range; the text names it and what it may be."""
+
+
+def parameter_unit(description: str) -> str:
+    """The unit a parameter's description ends with (``"serial baud rate, bit/s"`` -> ``bit/s``,
+    a note in parentheses after it allowed), ``""`` when it names none."""
+    match = _UNIT.search(description)
+    return match[1] if match else ""
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+def _limit_text(limit: Limit | None) -> str:
+    if limit is None:
+        return ""
+    if limit and isinstance(limit[0], str):
+        return "one of " + ", ".join(str(v) for v in limit)
+    return f"{_number(limit[0])}..{_number(limit[1])}"  # type: ignore[arg-type]
+
+
+def parameter_descriptor(
+    name: str, default: object, description: str, limit: Limit | None = None
+) -> ParameterDescriptor:
+    """The descriptor of one parameter: its description (with the allowed values of a string)
+    and, for a number with ``limit``, its ``IntegerRange`` or ``FloatingPointRange``."""
+    descriptor = ParameterDescriptor(name=name, description=description)
+    if limit is None:
+        return descriptor
+    if isinstance(limit[0], str):
+        descriptor.additional_constraints = _limit_text(limit)
+    elif isinstance(default, int) and not isinstance(default, bool):
+        descriptor.integer_range = [IntegerRange(from_value=int(limit[0]), to_value=int(limit[1]))]
+    elif isinstance(default, float):
+        descriptor.floating_point_range = [
+            FloatingPointRange(from_value=float(limit[0]), to_value=float(limit[1]))
+        ]
+    return descriptor
+
+
+def _limit(name: str, limits: Mapping[str, Limit] | None) -> Limit | None:
+    return (limits or {}).get(name, SHARED_LIMITS.get(name))
+
+
+def _given(node: Node, name: str) -> object:
+    """The value given for ``name`` (command line, parameters file, overrides); rclpy keeps
+    them in ``Node._parameter_overrides`` and has no public accessor."""
+    given = getattr(node, "_parameter_overrides", {}).get(name)
+    return "?" if given is None else given.value
+
+
+def declare_parameters(
+    node: Node,
+    parameters: Iterable[tuple[str, object, str]],
+    limits: Mapping[str, Limit] | None = None,
+) -> None:
+    """Declare ``(name, default, description)`` parameters with their descriptors.
+
+    Parameters
+    ----------
+    node : Node
+        The node.
+    parameters : iterable of (name, default, description)
+        The node's table (``PARAMETERS`` of its module); a description ends with the unit.
+    limits : mapping of name to Limit, optional
+        Ranges of numbers and allowed values of strings (``LIMITS`` of the module; otherwise
+        ``SHARED_LIMITS``).
+
+    Raises
+    ------
+    BadParameterError
+        If a value given for a parameter has another type than its default, is out of range or
+        not one of the allowed values.
+    """
     for name, default, description in parameters:
-        node.declare_parameter(name, default, ParameterDescriptor(description=description))
+        limit = _limit(name, limits)
+        try:
+            value = node.declare_parameter(
+                name, default, parameter_descriptor(name, default, description, limit)
+            ).value
+        except InvalidParameterTypeException:
+            given = _given(node, name)
+            if isinstance(default, float) and type(given) is int:
+                raise BadParameterError(
+                    f"parameter {name}: {given} is an integer, the parameter a double "
+                    f"(write {given}.0)"
+                ) from None
+            kind = _KINDS.get(type(default), "value")
+            kind = _ARTICLES.get(kind, f"a {kind}")
+            raise BadParameterError(
+                f"parameter {name}: {given!r} is not {kind} (default {default!r})"
+            ) from None
+        except InvalidParameterValueException:
+            raise BadParameterError(
+                f"parameter {name}: {_given(node, name)!r} is out of range {_limit_text(limit)}"
+            ) from None
+        if limit and isinstance(limit[0], str) and value not in limit:
+            raise BadParameterError(f"parameter {name}: {value!r} is not {_limit_text(limit)}")
+
+
+def parameters_help(
+    prog: str,
+    summary: str,
+    parameters: Iterable[tuple[str, object, str]],
+    limits: Mapping[str, Limit] | None = None,
+) -> str:
+    """The ``--help`` text of a node executable: usage, ``summary`` and every parameter with its
+    type, default, unit and range (the same as its descriptor)."""
+    lines = [
+        f"usage: {prog} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] ...]",
+        "",
+        summary,
+        "",
+        "parameters (-p NAME:=VALUE; a change at run time is checked against the same ranges):",
+    ]
+    for name, default, description in parameters:
+        facts = [_KINDS.get(type(default), type(default).__name__), f"default {default!r}"]
+        unit = parameter_unit(description)
+        if unit:
+            facts.append(f"unit {unit}")
+        limit = _limit_text(_limit(name, limits))
+        if limit:
+            facts.append(f"range {limit}" if not limit.startswith("one of") else limit)
+        lines += [f"  {name}  ({'; '.join(facts)})", f"      {description}"]
+    return "\n".join(lines) + "\n"
+
+
+def _node_tables(
+    factory: Callable[..., Node],
+) -> tuple[str, tuple[tuple[str, object, str], ...], Mapping[str, Limit]]:
+    """The summary line, parameter table and limits of a node class's module."""
+    module = sys.modules.get(getattr(factory, "__module__", ""))
+    doc = (getattr(module, "__doc__", None) or factory.__doc__ or "").strip()
+    return (
+        doc.splitlines()[0] if doc else "",
+        tuple(getattr(module, "PARAMETERS", ())),
+        getattr(module, "LIMITS", {}),
+    )
 
 
 def refuse_start_only(
@@ -236,27 +403,61 @@ def init_rclpy(args: list[str] | None) -> None:
         raise KeyboardInterrupt
 
 
+def wants_help(args: list[str] | None) -> bool:
+    """Whether a node's command line (``sys.argv`` when None) asks for ``-h`` / ``--help``
+    outside its ``--ros-args`` part."""
+    argv = sys.argv if args is None else args
+    return bool({"-h", "--help"} & set(remove_ros_args(argv)[1:]))
+
+
+def _rcl_reason(exc: Exception) -> str:
+    """The first sentence of an rcl error (without rcl's source locations)."""
+    return str(exc).splitlines()[0].split(". Error:")[0].split(", at /")[0]
+
+
 def run(factory: Callable[[], Node], args: list[str] | None = None) -> None:
     """Run one node until Ctrl-C; exit 1 with the reason when it cannot start (ValueError).
 
+    ``-h`` / ``--help`` prints the parameters (``parameters_help``, from the module's
+    ``PARAMETERS`` and ``LIMITS``) and exits 0 without starting a node; a bad parameter
+    (``BadParameterError``) or a command line rcl cannot parse is one line on stderr and exit 2.
     The executor is ``make_executor()``'s. A node with a ``shutdown()`` method gets it called
     before it is destroyed.
     """
+    # The executable's name (``esc_driver``), also under ``python -m thruster_fdd.nodes.X``.
+    module = str(getattr(factory, "__module__", ""))
+    name = Path(sys.argv[0]).stem if module == "__main__" else module.rpartition(".")[2]
+    try:
+        help_asked = wants_help(args)
+    except _rclpy.RCLError as exc:
+        print(f"{name}: bad command line: {_rcl_reason(exc)}", file=sys.stderr)
+        sys.exit(2)
+    if help_asked:
+        summary, parameters, limits = _node_tables(factory)
+        sys.stdout.write(parameters_help(name, summary, parameters, limits))
+        sys.exit(0)
     stop_with_parent()
     try:
         kind = executor_kind()
     except ValueError as exc:
-        print(f"{factory.__name__}: cannot start: {exc}", file=sys.stderr)
+        print(f"{name}: cannot start: {exc}", file=sys.stderr)
         sys.exit(1)
     try:
         init_rclpy(args)
     except KeyboardInterrupt:
         rclpy.try_shutdown()
         return
+    except _rclpy.RCLError as exc:
+        print(f"{name}: bad command line: {_rcl_reason(exc)}", file=sys.stderr)
+        sys.exit(2)
     try:
         node = factory()
+    except BadParameterError as exc:
+        print(f"{name}: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
     except ValueError as exc:
-        print(f"{factory.__name__}: cannot start: {exc}", file=sys.stderr)
+        print(f"{name}: cannot start: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(1)
     executor = make_executor(kind)

@@ -36,6 +36,7 @@ from rclpy.utilities import remove_ros_args
 
 from thruster_fdd.lifetime import stop_with_parent
 from thruster_fdd.nodes.common import (
+    BadParameterError,
     executor_kind,
     init_rclpy,
     make_executor,
@@ -108,14 +109,21 @@ def parse_parameters(kinds: list[str], texts: list[str]) -> dict[str, list[Param
 def main(argv: list[str] | None = None) -> None:
     """Create one node of each ``KIND`` per thruster and spin them all until Ctrl-C."""
     argv = sys.argv if argv is None else [sys.argv[0], *argv]
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="container",
+        description=__doc__.splitlines()[0],
+        epilog="Each kind's parameters, with units, defaults and ranges: `<kind> --help` "
+        "(ros2 run thruster_fdd esc_driver --help). A bad parameter is one line, exit 2.",
+    )
     parser.add_argument(
         "kinds",
         nargs="+",
         metavar="KIND",
         help=f"node kinds: {', '.join(sorted(KINDS))}, or package.module:Class",
     )
-    parser.add_argument("--thrusters", nargs="+", required=True, metavar="ID")
+    parser.add_argument(
+        "--thrusters", nargs="+", required=True, metavar="ID", help="one node of each kind per id"
+    )
     parser.add_argument(
         "--no-intra-process",
         dest="intra_process",
@@ -124,7 +132,13 @@ def main(argv: list[str] | None = None) -> None:
         "its thruster's samples by a direct call in this process",
     )
     parser.add_argument(
-        "-p", dest="params", action="append", default=[], metavar="[KIND:]NAME=VALUE"
+        "-p",
+        dest="params",
+        action="append",
+        default=[],
+        metavar="[KIND:]NAME=VALUE",
+        help="a parameter of every node of KIND (of every kind without it); wins over the "
+        "parameters file",
     )
     args = parser.parse_args(remove_ros_args(argv)[1:])
     try:
@@ -158,6 +172,9 @@ def main(argv: list[str] | None = None) -> None:
             spin(executors[0])
         else:
             spin_in_threads(executors, args.thrusters)
+    except BadParameterError as exc:
+        print(f"container {' '.join(args.kinds)}: {exc}", file=sys.stderr)
+        sys.exit(2)
     except ValueError as exc:
         print(f"container {' '.join(args.kinds)}: cannot start: {exc}", file=sys.stderr)
         sys.exit(1)

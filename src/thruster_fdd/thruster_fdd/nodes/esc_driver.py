@@ -56,6 +56,7 @@ from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
     RELIABLE_10,
+    Limit,
     declare_parameters,
     diagnostics_publisher,
     publish_status,
@@ -79,6 +80,21 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
     ("autostart", False, "configure and activate at start, without a lifecycle manager"),
 )
+
+# Ranges and allowed values, in the descriptors (``ros2 param describe``, ``esc_driver --help``);
+# ``DriverSettings`` checks the rest (strictly positive rates) at configure.
+LIMITS: dict[str, Limit] = {
+    "baud": (1200, 4_000_000),
+    "protocol": ("tfdd", "kiss"),
+    "rate_hz": (0.1, 10_000.0),
+    "pole_pairs": (1, 100),
+    "command_rate_hz": (0.1, 1000.0),
+    "command_timeout_s": (0.01, 60.0),
+    "max_command_rate_per_s": (0.0, 1000.0),
+    "bridge_timeout_ms": (0, 65535),
+    "reconnect_period_s": (0.01, 60.0),
+    "diagnostics_period_s": (0.01, 3600.0),
+}
 
 _PORTS: SerialPorts | None = None
 
@@ -151,7 +167,7 @@ class EscDriver(LifecycleNode):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("esc_driver", **node_kwargs)
-        declare_parameters(self, PARAMETERS)
+        declare_parameters(self, PARAMETERS, LIMITS)
         self._diag_pub = diagnostics_publisher(self)
         self._local_subscribers: list[Callable[[EscTelemetry], None]] = []
         self._settings: DriverSettings | None = None

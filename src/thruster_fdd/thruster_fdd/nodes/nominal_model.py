@@ -29,6 +29,7 @@ from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
+    Limit,
     declare_parameters,
     diagnostics_publisher,
     publish_status,
@@ -63,6 +64,11 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
         "subscribe to esc/telemetry reliable, depth 1000 (replay), not sensor data (driver)",
     ),
 )
+LIMITS: dict[str, Limit] = {
+    "max_gap_periods": (1.0, 1000.0),
+    "diagnostics_period_s": (0.01, 3600.0),
+}
+"""Ranges in the descriptors (``ros2 param describe``, ``nominal_model --help``)."""
 
 
 def residual_message(
@@ -106,7 +112,7 @@ class NominalModelNode(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("nominal_model", **node_kwargs)
-        declare_parameters(self, PARAMETERS)
+        declare_parameters(self, PARAMETERS, LIMITS)
         p = self.get_parameter
         self._id = p("thruster_id").value
         model_dir = p("model_dir").value or str(default_models_dir() / "nominal")

@@ -6,7 +6,12 @@ transient-local, deep, when every publisher is, so the history published before 
 matched — the first residuals of a run — is recorded too, as rosbag2 does), and
 hands the bytes to ``core.traces.recording.McapRecorder``, which writes the bag folder
 ``<output_dir>/<prefix>`` with its ``metadata.yaml``; the publishers' QoS profiles and type
-hashes go into the bag (``ros2 bag play`` offers the same QoS again). A type whose definition
+hashes go into the bag (``ros2 bag play`` offers the same QoS again). A topic first seen through
+its subscribers only (under ``up`` the drivers' publishers come at *configure*, after the nominal
+models subscribed) is subscribed at once with the fallback QoS (best effort, volatile), and its
+publishers' QoS and type hash are taken when they appear, as rosbag2's recorder adapts: looked
+up again at every discovery and before the topic's first message is written. A type whose
+definition
 nobody has is recorded with an empty definition. An unwritable folder or a full disk is reported on
 ``/diagnostics`` as ERROR while the node (and the rest of the graph) keeps running. Stopped by
 Ctrl-C or by the death of the ``up`` that started it, it finishes the bag.
@@ -27,6 +32,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from thruster_fdd.core.traces.recording import BAG_METADATA, McapRecorder, RecordingPolicy
 from thruster_fdd.nodes.common import (
+    Limit,
     declare_parameters,
     diagnostics_publisher,
     publish_status,
@@ -53,6 +59,16 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("model_ids", "", "ids of the models running, written into the metadata (up fills it)"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
 )
+LIMITS: dict[str, Limit] = {
+    "discovery_period_s": (0.01, 60.0),
+    "max_file_mb": (0.001, 1.0e6),
+    "max_file_duration_s": (0.1, 1.0e6),
+    "chunk_kb": (1, 1_000_000),
+    "flush_period_s": (0.01, 3600.0),
+    "compression": ("zstd", "lz4", "none"),
+    "diagnostics_period_s": (0.01, 3600.0),
+}
+"""Ranges and allowed values in the descriptors (``ros2 param describe``, ``recorder --help``)."""
 
 
 def _software_version() -> str:
@@ -93,7 +109,7 @@ class Recorder(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("recorder", **node_kwargs)
-        declare_parameters(self, PARAMETERS)
+        declare_parameters(self, PARAMETERS, LIMITS)
         p = self.get_parameter
         self._include = re.compile(p("include").value)
         self._exclude = set(p("exclude").value)
@@ -121,6 +137,8 @@ class Recorder(Node):
         # topic -> (type, offered QoS profiles, type hash), for every bag this node opens.
         self._topics: dict[str, tuple[str, list[dict[str, Any]], str]] = {}
         self._thrusters: set[str] = set()
+        # Topics with a message written (their publishers' QoS was looked up before the first).
+        self._written: set[str] = set()
         self._received = 0
         self._dropped = 0
         self._window = (0, time.monotonic())
@@ -152,7 +170,32 @@ class Recorder(Node):
             self._failed(f"cannot record to {self._output_dir}: {exc.strerror or exc}")
             self.get_logger().error(self._error)
 
+    def _offered(self, topic: str) -> tuple[list[dict[str, Any]], str]:
+        """The QoS profiles and the type hash the publishers of ``topic`` offer now (``[]``
+        and ``""`` while it has none)."""
+        publishers = self.get_publishers_info_by_topic(topic)
+        offered = [qos_profile_dict(info.qos_profile) for info in publishers]
+        type_hash = str(getattr(publishers[0], "topic_type_hash", "")) if publishers else ""
+        return offered, type_hash
+
+    def _adapt(self, topic: str) -> bool:
+        """Take the publishers' QoS and type hash of a topic recorded without them yet; True
+        when the topic has them (now or before)."""
+        type_name, offered, type_hash = self._topics[topic]
+        if offered:
+            return True
+        offered, type_hash = self._offered(topic)
+        if not offered:
+            return False
+        self._topics[topic] = (type_name, offered, type_hash)
+        if self._recorder is not None:
+            self._recorder.update_topic(topic, offered, type_hash)
+        self.get_logger().info(f"{topic}: publishers appeared, their QoS is recorded")
+        return True
+
     def _discover(self) -> None:
+        for topic in self._topics:
+            self._adapt(topic)
         for topic, types in self.get_topic_names_and_types():
             if topic in self._subscribed or not types:
                 continue
@@ -166,8 +209,7 @@ class Recorder(Node):
                 self._subscribed[topic] = type_name
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
-            offered = [qos_profile_dict(info.qos_profile) for info in publishers]
-            type_hash = str(getattr(publishers[0], "topic_type_hash", "")) if publishers else ""
+            offered, type_hash = self._offered(topic)
             self._topics[topic] = (type_name, offered, type_hash)
             if self._recorder is not None:
                 self._recorder.add_topic(topic, type_name, offered, type_hash)
@@ -214,6 +256,10 @@ class Recorder(Node):
         if self._retry_after > time.monotonic():
             self._dropped += 1
             return
+        if topic not in self._written:
+            # The file's channel is made with the first message: by then a publisher exists.
+            self._adapt(topic)
+            self._written.add(topic)
         try:
             self._recorder.write(topic, type_name, data, time.time_ns())
             self._recovered()

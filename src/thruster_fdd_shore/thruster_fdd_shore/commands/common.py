@@ -52,6 +52,38 @@ def finite_float(text: str) -> float:
     return value
 
 
+MODELS_HELP = "default: $THRUSTER_FDD_MODELS, else the workspace's models/"
+"""How every command's default models folder is found (``default_models_dir``)."""
+
+
+def model_folder(given: Path | None, stage: str) -> Path:
+    """``given``, else ``<default models folder>/<stage>`` (``nominal``, ``classifier``): the one
+    rule of every command, whatever the current folder."""
+    from thruster_fdd.core.artifact import default_models_dir
+
+    return given if given is not None else default_models_dir() / stage
+
+
+def refuse_shipped(out: Path, force: bool) -> None:
+    """Refuse to replace an exported model of the models folder (``default_models_dir``: the
+    committed models, or ``$THRUSTER_FDD_MODELS``) unless ``force``.
+
+    Raises
+    ------
+    BadInputError
+        If ``out`` is one of that folder's model folders and holds a model card.
+    """
+    from thruster_fdd.core.artifact import CARD_FILE, default_models_dir
+
+    shipped = default_models_dir().resolve()
+    if force or not (out / CARD_FILE).is_file() or out.resolve().parent != shipped:
+        return
+    raise BadInputError(
+        f"--out {out}: the model {shipped.name}/{out.name} that the nodes, up and replay use "
+        "would be replaced; give another --out, or --force"
+    )
+
+
 def check_output(path: Path, option: str, *, folder: bool = False) -> None:
     """Refuse an output path that cannot be written, before any work is done.
 

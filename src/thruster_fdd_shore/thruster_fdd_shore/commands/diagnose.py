@@ -11,7 +11,12 @@ from pathlib import Path
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES, UNKNOWN
-from thruster_fdd_shore.commands.common import EXIT_FAILED, EXIT_OK, positive_float
+from thruster_fdd_shore.commands.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    check_output,
+    positive_float,
+)
 
 NAME = "diagnose"
 HELP = "offline diagnosis of a trace: label changes, first fault, overall (JSON); --expect for CI"
@@ -48,8 +53,14 @@ def expectation(text: str) -> tuple[str, float | None]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd diagnose``."""
     p.add_argument("trace", type=Path, metavar="TRACE", help="CSV, MCAP or bag folder")
-    p.add_argument("--models", type=Path, default=Path("models"), metavar="DIR")
-    p.add_argument("--json", type=Path, metavar="OUT")
+    p.add_argument(
+        "--models",
+        type=Path,
+        metavar="DIR",
+        help="folder with nominal/ and classifier/ (default: $THRUSTER_FDD_MODELS, else the "
+        "workspace's models/)",
+    )
+    p.add_argument("--json", type=Path, metavar="OUT", help="write the result as JSON here")
     p.add_argument("--hop", type=positive_float, default=1.0, help="time between decisions, s")
     p.add_argument("--thruster", metavar="ID", help="thruster of a recording (default: first)")
     p.add_argument(
@@ -74,14 +85,18 @@ def check_expectation(result: dict, label: str, after_s: float | None) -> tuple[
 
 def run(args: argparse.Namespace) -> int:
     """Diagnose ``args.trace``; print the label changes; check ``--expect``."""
-    import torch
-
-    from thruster_fdd_shore.core.diagnosis.offline import diagnose_trace
+    from thruster_fdd.core.artifact import CARD_FILE, default_models_dir
     from thruster_fdd_shore.core.traces.files import read_traces
 
-    torch.set_num_threads(1)
+    # The input first: a typo answers at once, before torch (about 2.4 s) is imported.
     if not args.trace.exists():
         raise BadInputError(f"{args.trace}: no such trace file or bag folder")
+    models = args.models if args.models is not None else default_models_dir()
+    for stage in ("nominal", "classifier"):
+        if not (models / stage / CARD_FILE).is_file():
+            raise BadInputError(f"{models / stage}: no exported model ({CARD_FILE}) (--models)")
+    if args.json is not None:
+        check_output(args.json, "--json")
     traces = read_traces([args.trace])
     if args.thruster is not None:
         traces = [t for t in traces if t.thruster_id == args.thruster]
@@ -91,9 +106,12 @@ def run(args: argparse.Namespace) -> int:
         ids = ", ".join(str(t.thruster_id) for t in traces)
         print(f"note: {args.trace} holds {len(traces)} traces ({ids}); using the first "
               "(--thruster ID)", file=sys.stderr)  # fmt: skip
-    result = diagnose_trace(
-        traces[0], args.models / "nominal", args.models / "classifier", hop_s=args.hop
-    )
+    import torch
+
+    from thruster_fdd_shore.core.diagnosis.offline import diagnose_trace
+
+    torch.set_num_threads(1)
+    result = diagnose_trace(traces[0], models / "nominal", models / "classifier", hop_s=args.hop)
     if not result["windows"]:
         span = float(traces[0].t[-1] - traces[0].t[0]) if len(traces[0]) else 0.0
         raise BadInputError(

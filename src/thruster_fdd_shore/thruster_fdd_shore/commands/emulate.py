@@ -40,12 +40,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="path of the port symlink to create (an existing file there is refused)",
     )
     p.add_argument("--preset", default="t100", help="simulator preset or configuration YAML")
-    p.add_argument("--condition", default="nominal_15v", choices=CLASS_NAMES)
+    p.add_argument(
+        "--condition",
+        default="nominal_15v",
+        choices=CLASS_NAMES,
+        help="simulated thruster's class (default: %(default)s)",
+    )
     p.add_argument(
         "--voltage", type=positive_float, help="supply voltage, V (default: the condition's)"
     )
     p.add_argument("--rate", type=positive_float, default=50.0, help="telemetry rate, Hz (1-1000)")
-    p.add_argument("--protocol", default="tfdd", choices=("tfdd", "kiss"))
+    p.add_argument(
+        "--protocol",
+        default="tfdd",
+        choices=("tfdd", "kiss"),
+        help="telemetry format the bridge sends: tfdd (bridge protocol) or kiss (KISS/BLHeli_32)",
+    )
     p.add_argument(
         "--bridge",
         choices=BRIDGES,

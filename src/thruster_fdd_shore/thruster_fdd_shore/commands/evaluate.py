@@ -10,7 +10,9 @@ from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd_shore.commands.common import (
     EXIT_OK,
+    MODELS_HELP,
     check_output,
+    model_folder,
     non_negative_int,
     positive_float,
 )
@@ -18,56 +20,80 @@ from thruster_fdd_shore.commands.common import (
 NAME = "evaluate"
 HELP = "evaluate models: the paper's Table 2 (nominal) and Table 3 (classifier)"
 DESCRIPTION = (
-    "evaluate nominal --model DIR --data TRACE... [--json OUT]: metrics of an exported nominal "
-    "model on traces (free run by default). evaluate nominal without --model: the paper's Table "
-    "2 protocol on simulated data (train on the 0.01 Hz sine, test at 0.01-0.04 Hz, repeated "
-    "seeds; ours vs the paper vs SysIdentPy) written to --out as Markdown, JSON and PNG. "
-    "evaluate classifier [--model DIR] [--nominal DIR] [--seed N]: the paper's Table 3 protocol "
-    "(MLP and LSTM per sample on signals and on residuals, 3-fold time-series CV, separate test "
-    "set) beside the exported window classifier on unseen simulated thrusters, fault-onset times "
-    "and UNKNOWN checks, written to --out as table3.md, table3.json and confusion-matrix PNGs."
+    "evaluate nominal: an exported nominal model on traces, or the paper's Table 2. evaluate "
+    "classifier: the paper's Table 3 beside the exported window classifier. Each target has its "
+    "own options: `thruster-fdd evaluate nominal --help`."
 )
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Options of ``thruster-fdd evaluate``."""
-    p.add_argument("target", choices=["nominal", "classifier"])
-    p.add_argument("--model", type=Path, metavar="DIR")
-    p.add_argument("--data", nargs="+", type=Path, metavar="TRACE")
-    p.add_argument("--json", type=Path, metavar="OUT")
-    p.add_argument(
+    """Options of ``thruster-fdd evaluate`` and its two targets, each with its own."""
+    what = p.add_subparsers(dest="target", metavar="{nominal,classifier}", required=True)
+    n = what.add_parser(
+        "nominal",
+        help="an exported nominal model on traces (--model), or the paper's Table 2",
+        description=(
+            "With --model DIR --data TRACE...: metrics of an exported nominal model on traces "
+            "(free run by default; JSON with --json). Without --model: the paper's Table 2 "
+            "protocol on simulated data (train on the 0.01 Hz sine, test at 0.01-0.04 Hz, "
+            "repeated seeds; ours vs the paper vs SysIdentPy) written to --out as Markdown, JSON "
+            "and PNG."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    n.add_argument("--model", type=Path, metavar="DIR", help="exported nominal model folder")
+    n.add_argument(
+        "--data", nargs="+", type=Path, metavar="TRACE", help="with --model: traces to score"
+    )
+    n.add_argument("--json", type=Path, metavar="OUT", help="write the metrics as JSON here")
+    n.add_argument(
         "--mode",
         choices=["parallel", "series-parallel"],
         default="parallel",
-        help="with --model: NARX configuration to evaluate",
+        help="with --model: NARX configuration to evaluate (parallel: free run)",
     )
-    p.add_argument(
-        "--out",
-        type=Path,
-        metavar="DIR",
-        help="output folder (default out/table2 for nominal, out/table3 for classifier)",
+    n.add_argument(
+        "--out", type=Path, default=Path("out/table2"), metavar="DIR", help="Table 2 folder"
     )
-    p.add_argument(
-        "--nominal",
-        type=Path,
-        default=Path("models/nominal"),
-        metavar="DIR",
-        help="classifier: the nominal model that makes the residuals",
+    n.add_argument("--seeds", type=int, default=3, help="Table 2: repeated runs (seeds 0..N-1)")
+    n.add_argument("--rate", type=positive_float, default=10.0, help="Table 2: sample rate, Hz")
+    n.add_argument(
+        "--train-samples", type=int, default=2000, help="Table 2: training samples, 100..1000000"
     )
-    p.add_argument(
-        "--seed", type=non_negative_int, default=0, help="classifier: seed (shifts unseen units)"
+    n.add_argument(
+        "--test-samples", type=int, default=1000, help="Table 2: test samples, 100..1000000"
     )
-    p.add_argument(
-        "--seeds", type=int, default=3, help="Table 2: repeated runs (seeds 0..N-1), 1..100"
-    )
-    p.add_argument("--rate", type=positive_float, default=10.0, help="Table 2: sample rate, Hz")
-    p.add_argument("--train-samples", type=int, default=2000, help="Table 2, 100..1000000")
-    p.add_argument("--test-samples", type=int, default=1000, help="Table 2, 100..1000000")
-    p.add_argument(
+    n.add_argument(
         "--epochs", type=non_negative_int, help="Table 2: one-step epochs (default: training's)"
     )
-    p.add_argument("--no-sysidentpy", action="store_true", help="Table 2: skip the peer")
-    p.add_argument("--no-plots", action="store_true", help="Table 2: skip the figures")
+    n.add_argument("--no-sysidentpy", action="store_true", help="Table 2: skip the peer")
+    n.add_argument("--no-plots", action="store_true", help="Table 2: skip the figures")
+    c = what.add_parser(
+        "classifier",
+        help="the paper's Table 3 beside the exported window classifier",
+        description=(
+            "The paper's Table 3 protocol (MLP and LSTM per sample on signals and on residuals, "
+            "3-fold time-series CV, separate test set) beside the exported window classifier on "
+            "unseen simulated thrusters, fault-onset times and UNKNOWN checks, written to --out "
+            "as table3.md, table3.json and confusion-matrix PNGs."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    c.add_argument(
+        "--model",
+        type=Path,
+        metavar="DIR",
+        help=f"exported classifier (<models>/classifier; {MODELS_HELP})",
+    )
+    c.add_argument(
+        "--nominal",
+        type=Path,
+        metavar="DIR",
+        help=f"the nominal model that makes the residuals (<models>/nominal; {MODELS_HELP})",
+    )
+    c.add_argument("--seed", type=non_negative_int, default=0, help="seed (shifts unseen units)")
+    c.add_argument("--out", type=Path, default=Path("out/table3"), metavar="DIR", help="folder")
+    c.add_argument("--json", type=Path, metavar="OUT", help="also copy table3.json here")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,7 +134,7 @@ def _table2(args: argparse.Namespace) -> int:
 
     from thruster_fdd_shore.core.nominal import evaluation as ev
 
-    out = args.out if args.out is not None else Path("out/table2")
+    out = args.out
     if not (
         1 <= args.seeds <= 100
         and 100 <= args.train_samples <= 1_000_000
@@ -143,9 +169,10 @@ def _classifier(args: argparse.Namespace) -> int:
     from thruster_fdd_shore.core.diagnosis.evaluation import run_evaluation
     from thruster_fdd_shore.core.diagnosis.table3 import table3_markdown
 
-    out = args.out if args.out is not None else Path("out/table3")
-    model = args.model if args.model is not None else Path("models/classifier")
-    result = run_evaluation(args.nominal, model, out, seed=args.seed, progress=True)
+    out = args.out
+    model = model_folder(args.model, "classifier")
+    nominal = model_folder(args.nominal, "nominal")
+    result = run_evaluation(nominal, model, out, seed=args.seed, progress=True)
     if args.json is not None:
         write_text(args.json, (out / "table3.json").read_text())
     print(table3_markdown(result))

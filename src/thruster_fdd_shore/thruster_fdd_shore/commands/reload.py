@@ -49,7 +49,13 @@ class Pair:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``thruster-fdd reload``."""
     p.add_argument("--thrusters", nargs="+", required=True, metavar="ID", help="e.g. t0 t1")
-    p.add_argument("--models", type=Path, metavar="DIR", help="folder with nominal/, classifier/")
+    p.add_argument(
+        "--models",
+        type=Path,
+        metavar="DIR",
+        help="folder with nominal/, classifier/ (without --nominal / --classifier: "
+        "$THRUSTER_FDD_MODELS, else the workspace's models/)",
+    )
     p.add_argument("--nominal", type=Path, metavar="DIR", help="nominal model folder")
     p.add_argument("--classifier", type=Path, metavar="DIR", help="classifier folder")
     p.add_argument("--timeout", type=float, default=10.0, help="per node and step, s")
@@ -72,7 +78,10 @@ def check_pair(args: argparse.Namespace) -> Pair:
             raise BadInputError("give --models DIR, or --nominal / --classifier, not both")
         nominal, classifier = args.models / "nominal", args.models / "classifier"
     if nominal is None and classifier is None:
-        raise BadInputError("give --models DIR (or --nominal DIR and --classifier DIR)")
+        # The one rule of every command: the models folder whatever the current folder.
+        from thruster_fdd.core.artifact import default_models_dir
+
+        nominal, classifier = default_models_dir() / "nominal", default_models_dir() / "classifier"
     for folder in (nominal, classifier):
         if folder is not None and not folder.is_dir():
             raise BadInputError(f"{folder}: no such model folder")

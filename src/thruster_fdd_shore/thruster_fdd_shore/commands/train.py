@@ -9,9 +9,12 @@ from typing import TYPE_CHECKING
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd_shore.commands.common import (
     EXIT_OK,
+    MODELS_HELP,
     check_output,
+    model_folder,
     non_negative_int,
     positive_float,
+    refuse_shipped,
 )
 
 if TYPE_CHECKING:
@@ -38,18 +41,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    n.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
-    n.add_argument("--out", type=Path, default=Path("models/nominal"), metavar="DIR")
+    n.add_argument(
+        "--data",
+        nargs="+",
+        type=Path,
+        required=True,
+        metavar="TRACE",
+        help="healthy traces: CSV / MCAP files, bag folders or folders of them",
+    )
+    n.add_argument(
+        "--out",
+        type=Path,
+        metavar="DIR",
+        help=f"export folder (<models>/nominal; {MODELS_HELP}); the shipped one needs --force",
+    )
+    n.add_argument(
+        "--force", action="store_true", help="replace the models folder's exported model"
+    )
     n.add_argument(
         "--seed", type=non_negative_int, default=0, help="seed of initialisation and shuffling"
     )
     n.add_argument(
         "--mode",
         choices=["parallel", "series-parallel"],
-        default="parallel",
-        help="NARX configuration the node uses for residuals (and trains for)",
+        default="series-parallel",
+        help="NARX configuration the node uses for residuals (and trains for); the shipped "
+        "model's and evaluate's",
     )
-    n.add_argument("--validation-fraction", type=float, default=0.2, metavar="F")
+    n.add_argument(
+        "--validation-fraction",
+        type=float,
+        default=0.2,
+        metavar="F",
+        help="last fraction of every trace held out for the card's validation metrics, [0, 1)",
+    )
     n.add_argument(
         "--epochs", type=non_negative_int, help="one-step epochs (default: the mode's default)"
     )
@@ -71,9 +96,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    c.add_argument("--data", nargs="+", type=Path, required=True, metavar="TRACE")
-    c.add_argument("--nominal", type=Path, default=Path("models/nominal"), metavar="DIR")
-    c.add_argument("--out", type=Path, default=Path("models/classifier"), metavar="DIR")
+    c.add_argument(
+        "--data",
+        nargs="+",
+        type=Path,
+        required=True,
+        metavar="TRACE",
+        help="labelled traces: CSV / MCAP files, bag folders or folders of them",
+    )
+    c.add_argument(
+        "--nominal",
+        type=Path,
+        metavar="DIR",
+        help=f"exported nominal model making the residuals (<models>/nominal; {MODELS_HELP})",
+    )
+    c.add_argument(
+        "--out",
+        type=Path,
+        metavar="DIR",
+        help=f"export folder (<models>/classifier; {MODELS_HELP}); the shipped one needs --force",
+    )
+    c.add_argument(
+        "--force", action="store_true", help="replace the models folder's exported model"
+    )
     c.add_argument("--seed", type=non_negative_int, default=0, help="seed of initialisation")
     c.add_argument("--window", type=positive_float, default=20.0, help="window length, s")
     c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
@@ -115,7 +160,11 @@ def run(args: argparse.Namespace) -> int:
 
     from thruster_fdd_shore.core.traces.files import file_digests, read_traces
 
+    args.out = model_folder(args.out, args.what)
+    if args.what == "classifier":
+        args.nominal = model_folder(args.nominal, "nominal")
     check_output(args.out, "--out", folder=True)
+    refuse_shipped(args.out, args.force)
     if args.out.resolve() in {Path(d).resolve() for d in args.data}:
         raise BadInputError(f"--out {args.out} is also a --data folder; it would be replaced")
     torch.set_num_threads(1)

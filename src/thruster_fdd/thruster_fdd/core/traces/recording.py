@@ -167,7 +167,26 @@ class McapRecorder:
     ) -> None:
         """Declare a topic before its messages: its publishers' QoS profiles (rosbag2 v9 form,
         ``qos_profile_dict``) and type hash (``RIHS01_...``) for the bag's metadata."""
+        known = self._topics.get(topic)
+        if known is not None and known.type_name == type_name:
+            known.offered_qos, known.type_hash = offered_qos, type_hash
+            return
         self._topics[topic] = _Topic(type_name, offered_qos, type_hash)
+
+    def update_topic(
+        self, topic: str, offered_qos: list[dict[str, Any]], type_hash: str = ""
+    ) -> None:
+        """Take a topic's publishers' QoS profiles and type hash seen after it was declared
+        (its publishers appeared after the recorder subscribed), keeping its message count.
+
+        ``metadata.yaml`` says them from its next rewrite on; a file whose channel for the topic
+        is already written keeps the channel it has (an MCAP channel cannot change), the next
+        file's channel has them.
+        """
+        info = self._topics.get(topic)
+        if info is None:
+            raise KeyError(f"{topic}: not declared (add_topic)")
+        info.offered_qos, info.type_hash = offered_qos, type_hash
 
     def _open(self, log_time_ns: int) -> _OpenFile:
         path = self.bag_dir / f"{self.bag_dir.name}_{len(self.files)}.mcap"

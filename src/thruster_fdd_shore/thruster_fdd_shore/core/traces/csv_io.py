@@ -89,7 +89,11 @@ def read_trace_csv(path: str | Path) -> Trace:
         raise BadInputError(f"{path}: empty file, expected a header with {expected}")
     missing = [c for c in TRACE_COLUMNS if c not in fields]
     if missing:
-        raise BadInputError(f"{path}: missing trace column(s) {', '.join(missing)}")
+        found = ", ".join(f or "''" for f in fields)
+        raise BadInputError(
+            f"{path}: missing trace column(s) {', '.join(missing)}; expected the columns "
+            f"{', '.join(TRACE_COLUMNS)} (units in docs/contracts.md, 'Trace CSV'), found {found}"
+        )
     if not rows:
         raise BadInputError(f"{path}: no samples")
     numeric = [c for c in fields if c and c not in ("condition", "thruster_id")]
