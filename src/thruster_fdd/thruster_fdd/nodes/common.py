@@ -57,6 +57,7 @@ SHARED_LIMITS: dict[str, Limit] = {
     "hop_s": (0.01, 3600.0),
     "hysteresis": (1, 100),
     "unknown_threshold": (-1.0, 1.0e6),
+    "false_alarms_per_hour": (1.0e-9, 100.0),
 }
 """Limits of parameters that mean the same in every node that has them (used where a node's
 module gives none of its own)."""
