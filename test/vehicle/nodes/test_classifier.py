@@ -118,7 +118,12 @@ def test_a_fouled_thruster_is_diagnosed_with_an_error_status(rig: Rig) -> None:
     assert last.condition == Diagnosis.BIOFOULING
     assert abs(sum(last.probabilities) - 1.0) < 1e-6
     assert set(last.class_names) == set(CLASS_NAMES)
-    assert last.confidence == max(last.probabilities)
+    # The fault comes from the sequential test: its evidence passed the threshold.
+    assert last.reason == ""
+    assert last.fault_evidence >= last.fault_threshold > 0
+    assert last.fault_candidate == "biofouling"
+    assert 1e-6 <= last.confidence <= 1.0 - 1e-6
+    assert all(1e-6 * (1 - 1e-9) <= p <= 1.0 - 1e-6 for p in last.probabilities)
     assert last.window_s > 0
     assert any(s.level == b"\x02" and "biofouling" in s.message for s in rig.statuses[s0:])
 

@@ -56,7 +56,8 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     from thruster_fdd.nodes.nominal_model import RESIDUAL_QOS
     from thruster_fdd_shore.core.sim.scenario import run_scenario
 
-    trace = run_scenario("t100", "broken_blade_2", signal="sine:0.02", duration_s=40, seed=4)
+    # 80 s: the sequential test needs at least 18 s of confident windows past the first 20 s one.
+    trace = run_scenario("t100", "broken_blade_2", signal="sine:0.02", duration_s=80, seed=4)
     ns = "/thruster/ct"
     cmd = [sys.executable, "-m", "thruster_fdd.nodes.container", "nominal_model", "classifier"]
     # A second thruster, idle: each thruster spins in its own executor thread.
@@ -109,6 +110,7 @@ def test_both_stages_in_one_container_diagnose(intra_process: bool) -> None:
     assert classifier_subscribed is not intra_process
     assert len(diagnoses) >= 10
     assert diagnoses[-1].label == "broken_blade_2"
+    assert diagnoses[-1].fault_evidence >= diagnoses[-1].fault_threshold
 
 
 # Two executors spun by spin_in_threads; a timer of the second raises after 0.3 s.
