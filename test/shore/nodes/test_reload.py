@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pytest
 from probe import Probe
 
@@ -54,6 +55,7 @@ class Rig:
     pub: object
     residual_ids: list = field(default_factory=list)
     diagnosis_ids: list = field(default_factory=list)
+    diagnosis_stamps: list = field(default_factory=list)
     status: dict = field(default_factory=dict)
     t: float = 5000.0
 
@@ -101,9 +103,12 @@ def rig() -> Iterator[Rig]:
         probe.node.create_subscription(
             Residual, f"{NS}/fdd/residual", lambda m: r.residual_ids.append(m.model_id), reliable
         )
-        probe.node.create_subscription(
-            Diagnosis, f"{NS}/fdd/diagnosis", lambda m: r.diagnosis_ids.append(m.model_id), reliable
-        )
+
+        def on_diagnosis(msg: Diagnosis) -> None:
+            r.diagnosis_ids.append(msg.model_id)
+            r.diagnosis_stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+
+        probe.node.create_subscription(Diagnosis, f"{NS}/fdd/diagnosis", on_diagnosis, reliable)
 
         def on_status(msg: DiagnosticArray) -> None:
             for s in msg.status:
@@ -222,6 +227,7 @@ def test_nominal_refusal_sets_the_classifier_back(rig: Rig, tmp_path: Path) -> N
 
 def test_reload_switches_the_pair_together(rig: Rig, tmp_path: Path) -> None:
     nominal_id, classifier_id = retrained_pair(tmp_path, "cccccccccccc")
+    n_start = len(rig.diagnosis_ids)
     proc = subprocess.Popen(
         [*RELOAD, "--models", str(tmp_path)],
         stdout=subprocess.PIPE,
@@ -237,8 +243,16 @@ def test_reload_switches_the_pair_together(rig: Rig, tmp_path: Path) -> None:
     n_res, n_diag = len(rig.residual_ids), len(rig.diagnosis_ids)
     rig.feed(25.0)
     assert set(rig.residual_ids[n_res:]) == {nominal_id}
-    assert rig.diagnosis_ids[n_diag:], "diagnoses continue with the new pair"
-    assert set(rig.diagnosis_ids[n_diag:]) == {classifier_id}
+    # No gap: while the new classifier fills its first window, the old pair's last diagnosis
+    # is published every hop (1 s of telemetry) under the old id; then only the new pair's.
+    stamps = rig.diagnosis_stamps[n_start:]
+    assert max(np.diff(stamps)) <= 2.0, "a diagnosis every hop through the switch"
+    after = rig.diagnosis_ids[n_start:]
+    assert after[-1] == classifier_id
+    first_new = after.index(classifier_id)
+    assert set(after[first_new:]) == {classifier_id}
+    old_id = json.loads((MODELS / "classifier" / CARD_FILE).read_text())["model_id"]
+    assert set(after[:first_new]) <= {old_id}
     assert rig.probe.spin_until(lambda: rig.classifier_status()["_msg"] != "", 3.0)
     assert "residuals from nominal model" not in rig.classifier_status()["_msg"]
 

@@ -89,6 +89,9 @@ class ClassifierNode(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__("classifier", **node_kwargs)
+        self._model: ClassifierModel | None = None
+        self._last: Decision | None = None
+        self._holding: tuple[Decision, str] | None = None
         declare_parameters(self, PARAMETERS)
         p = self.get_parameter
         self._id = p("thruster_id").value
@@ -105,7 +108,6 @@ class ClassifierNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._stale_after_s = float(p("stale_after_s").value)
         self._last_input_s: float | None = None
-        self._last: Decision | None = None
         self._mismatch = ""
         self._stale = False
         self._received = 0
@@ -124,11 +126,19 @@ class ClassifierNode(Node):
         )
 
     def _activate(self, model: ClassifierModel, model_dir: str) -> None:
-        """Run ``model`` from now on, with a fresh window and evidence."""
+        """Run ``model`` from now on, with a fresh window and evidence. Until its first
+        decision, the previous model's last decision is published again every hop (a reload
+        opens no gap in monitoring), under the previous model's id."""
+        if self._last is not None and self._model is not None:
+            self._holding = (self._last, self._model.model_id)
+        elif self._model is None:
+            self._holding = None
+        # else: a model replaced before its first decision; the diagnosis held stays held.
         self._model = model
         self._model_dir = model_dir
         self._stream = DiagnosisStream(model, **self._stream_options)
         self._last = None
+        self._held_until_s = -math.inf
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         refused = refuse_start_only(params, PARAMETERS, {"model_dir"})
@@ -201,11 +211,23 @@ class ClassifierNode(Node):
             # The same validity as core.nominal.residuals.ResidualSample.valid (offline diagnosis).
             not msg.flags & (Residual.WARMING_UP | Residual.INPUT_INVALID),
         )
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         if decision is not None:
             self._last = decision
+            self._holding = None
             self._publish(decision, msg.header)
+        elif self._holding is not None and stamp >= self._held_until_s:
+            held, model_id = self._holding
+            self._held_until_s = stamp + self._stream.hop_s
+            self._publish(held, msg.header, model_id=model_id)
 
-    def _publish(self, decision: Decision, header: object | None = None, reason: str = "") -> None:
+    def _publish(
+        self,
+        decision: Decision,
+        header: object | None = None,
+        reason: str = "",
+        model_id: str | None = None,
+    ) -> None:
         out = Diagnosis(
             thruster_id=self._id,
             condition=CONDITION_CODES.get(decision.label, Diagnosis.UNKNOWN),
@@ -214,7 +236,7 @@ class ClassifierNode(Node):
             probabilities=[float(v) for v in decision.probabilities.values()],
             confidence=float(decision.confidence),
             window_s=float(decision.window_s),
-            model_id=self._model.model_id,
+            model_id=model_id or self._model.model_id,
             reason=reason or decision.reason,
             covered=decision.covered,
             fault_evidence=_finite(decision.fault_evidence),
@@ -236,6 +258,7 @@ class ClassifierNode(Node):
             self._stale = True
             self._stream.reset()
             self._last = None
+            self._holding = None
             uniform = 1.0 / len(self._model.class_names)
             self._publish(
                 Decision(
@@ -251,8 +274,15 @@ class ClassifierNode(Node):
                 ),
                 reason="stale",
             )
-        label = self._last.label if self._last is not None else UNKNOWN
-        if self._mismatch:
+        last = self._last or (self._holding[0] if self._holding else None)
+        label = last.label if last is not None else UNKNOWN
+        if self._holding is not None and not silent and not self._mismatch:
+            level, message = (
+                DiagnosticStatus.WARN,
+                f"reload in progress: {self._model.model_id} warming up, "
+                f"{self._holding[1]}'s last diagnosis {label} held",
+            )
+        elif self._mismatch:
             level, message = DiagnosticStatus.ERROR, self._mismatch
         elif silent:
             level, message = DiagnosticStatus.STALE, "no residuals: diagnosis unknown"
