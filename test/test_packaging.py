@@ -22,7 +22,17 @@ PACKAGE = ROOT / "src" / "thruster_fdd"
 NODES = PACKAGE / "thruster_fdd" / "nodes"
 LAUNCH_FILE = PACKAGE / "launch" / "thruster_fdd.launch.py"
 SHORE = ROOT / "src" / "thruster_fdd_shore"
-SHORE_ONLY = ("thruster_fdd_shore", "torch", "scipy", "matplotlib", "sysidentpy", "tqdm")
+SHORE_ONLY = (
+    "thruster_fdd_shore",
+    "torch",
+    "scipy",
+    "matplotlib",
+    "sysidentpy",
+    "tqdm",
+    "dask",
+    "distributed",
+    "pyarrow",
+)
 """What a vehicle does not install."""
 
 # Top-level module -> the package.xml key that provides it.
@@ -58,6 +68,9 @@ SHORE_KEYS = {
     "threadpoolctl": "python3-threadpoolctl",
     "torch": "python3-torch",
     "sysidentpy": "python3-sysidentpy",
+    "dask": "python3-dask",
+    "distributed": "python3-distributed",
+    "pyarrow": "python3-pyarrow",
 }
 
 # What importing the vehicle's code loads: every node module; printed as the thruster_fdd module
@@ -179,7 +192,7 @@ def test_runtime_requirements_hold_what_the_nodes_import(runtime_imports: dict) 
         and not any(_norm(d) in runtime for d in by_module[top])
     ]
     assert not missing, f"imported by the nodes, not in requirements-runtime.txt: {missing}"
-    heavy = {"torch", "scipy", "matplotlib", "sysidentpy", "tqdm"}
+    heavy = {"torch", "scipy", "matplotlib", "sysidentpy", "tqdm", "dask", "distributed", "pyarrow"}
     assert not heavy & runtime.keys()
 
 

@@ -37,6 +37,7 @@ SUBCOMMANDS = (
     "reload",
     "reference",
     "emulate",
+    "fleet",
 )
 
 

@@ -19,6 +19,7 @@ from thruster_fdd_shore.commands import (
     discrepancy,
     emulate,
     evaluate,
+    fleet,
     record,
     reference,
     reload,
@@ -41,6 +42,7 @@ COMMANDS = (
     reload,
     reference,
     emulate,
+    fleet,
 )
 """The subcommand modules, in the order ``--help`` lists them."""
 
