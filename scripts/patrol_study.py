@@ -330,11 +330,15 @@ def plot_reliability(summary: dict[str, Any], path: Path) -> None:
     rows = summary["calibration"]["reliability"]
     fig, ax = plt.subplots(figsize=(4.5, 4.5))
     ax.plot([0, 1], [0, 1], color="0.6", linestyle="--", label="perfectly calibrated")
-    ax.plot([r["confidence"] for r in rows], [r["accuracy"] for r in rows], "o-", label="windows")
+    x = [r["confidence"] for r in rows]
+    y = [r["accuracy"] for r in rows]
+    ax.plot(x, y, "-", color="tab:blue", alpha=0.5)
+    ax.scatter(x, y, s=[20 + 600 * r["share"] for r in rows], color="tab:blue",
+               label="windows (area: share of windows)")  # fmt: skip
     ax.set_xlabel("published probability of the top class")
     ax.set_ylabel("share of windows where it is right")
     ax.set_title(f"Reliability, unseen units (ECE {summary['calibration']['ece']:.3f})")
-    ax.legend(loc="upper left")
+    ax.legend(loc="upper left", markerscale=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
