@@ -97,7 +97,7 @@ class Monitor(Node):
         """The live table, one line per thruster."""
         lines = [
             f"{'id':<4} {'rate Hz':>7} {'cmd':>6} {'pwm us':>6} {'V':>6} {'A':>6} "
-            f"{'rpm':>7} {'temp C':>6} {'res rpm':>7} {'res A':>6}  {'diagnosis':<24} link"
+            f"{'rpm':>7} {'temp C':>6} {'res rpm':>7} {'res A':>6}  {'diagnosis':<26} link"
         ]
         for tid, row in self.rows.items():
             m = row.last
@@ -107,10 +107,15 @@ class Monitor(Node):
             rms = self.residual_rms(tid)
             res = f"{rms[0]:7.0f} {rms[1]:6.2f}" if rms else f"{'-':>7} {'-':>6}"
             d = row.diagnosis
-            diag = f"{d.label} ({d.confidence:.2f})" if d is not None else "-"
+            if d is None:
+                diag = "-"
+            elif d.reason:
+                diag = f"{d.label}: {d.reason}"
+            else:
+                diag = f"{d.label} ({d.confidence:.2f})"
             lines.append(
                 f"{tid:<4} {self.rate_hz(tid):7.1f} {m.command:6.2f} {m.pwm_us:6d} "
                 f"{m.voltage_v:6.2f} {m.current_a:6.2f} {m.rpm:7.0f} {m.temperature_c:6.1f} "
-                f"{res}  {diag:<24} {row.health}"
+                f"{res}  {diag:<26} {row.health}"
             )
         return "\n".join(lines)
