@@ -375,3 +375,63 @@ def test_a_failed_train_nominal_leaves_the_old_model(
     assert "injected" in err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert sorted(p.name for p in work.iterdir() if p.name.startswith(".existing")) == []
+
+
+def _huge_header_weights(path: Path) -> None:
+    """A weights.npz whose one array header claims 10^12 float64 (8 TB) over 80 bytes of data."""
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        buf, {"descr": "<f8", "fortran_order": False, "shape": (10**12,)}
+    )
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("out.bias.npy", buf.getvalue() + bytes(80))
+
+
+def _nested_card(path: Path) -> None:
+    """A model card of 200,000 nested brackets."""
+    path.write_text('{"kind": "nominal", "files": ' + "[" * 200_000 + "]" * 200_000 + "}")
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [(_huge_header_weights, "header claims"), (_nested_card, "nested too deep")],
+    ids=["weights-header-1e12", "card-200000-brackets"],
+)
+def test_hostile_model_files_are_one_line_exit_2(
+    work: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    damage: Callable[[Path], None],
+    words: str,
+) -> None:
+    """Loaders bound what they read before allocating: no MemoryError or RecursionError."""
+    models = tmp_path / "models"
+    shutil.copytree(MODELS, models)
+    nominal = models / "nominal"
+    if damage is _nested_card:
+        damage(nominal / CARD_FILE)
+    else:
+        damage(nominal / "weights.npz")
+        card = json.loads((nominal / CARD_FILE).read_text())
+        card["files"]["weights.npz"] = file_sha256(nominal / "weights.npz")
+        (nominal / CARD_FILE).write_text(json.dumps(card))
+    code, err = _run(["diagnose", str(work / "ok.csv"), "--models", str(models)], capsys)
+    lines = [line for line in err.splitlines() if line]
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert words in lines[0], lines[0]
+
+
+def test_oversized_card_is_refused_unread(tmp_path: Path) -> None:
+    from thruster_fdd.core.artifact import MAX_CARD_BYTES
+    from thruster_fdd.core.errors import ModelMismatchError
+    from thruster_fdd.core.nominal.card import read_nominal_card
+
+    folder = tmp_path / "nominal"
+    shutil.copytree(MODELS / "nominal", folder)
+    (folder / CARD_FILE).write_text('{"kind": "nominal", "pad": "' + "x" * MAX_CARD_BYTES + '"}')
+    with pytest.raises(ModelMismatchError, match="larger than"):
+        read_nominal_card(folder)
