@@ -67,6 +67,12 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     (d / "bomb.yaml").write_text(bomb + "thrusters: [*i]\n")
     (d / "binary.yaml").write_bytes(bytes(range(256)) * 4)
+    (d / "umlaut.yaml").write_text("thrusters: [{id: tä}]\n", encoding="utf-8")
+    (d / "longid.yaml").write_text(f"thrusters: [{{id: {'t' * 300}}}]\n")
+    for name, value in DRIVER_OUT_OF_RANGE:
+        (d / f"driver_{name}_{value}.yaml").write_text(
+            f"thrusters: [{{id: t0, port: /dev/null, {name}: {value}}}]\n"
+        )
     return d
 
 
@@ -100,8 +106,23 @@ def _appended(name: str) -> Callable[[Path], None]:
     return change
 
 
+DRIVER_OUT_OF_RANGE: list[tuple[str, str]] = [
+    ("bridge_timeout_ms", "70000"),
+    ("bridge_timeout_ms", "0"),
+    ("rate_hz", "100000.0"),
+    ("baud", "1e23"),
+    ("command_rate_hz", "1e-300"),
+]
+"""Driver settings outside the esc_driver's declared ranges (name, YAML value)."""
+
 # (arguments with {w} for the work folder and {m} for the models, words the one line holds)
 BAD_INPUT: list[tuple[str, str]] = [
+    ("up --config {w}/umlaut.yaml", "must be a ROS name token"),
+    ("up --config {w}/longid.yaml", "at most 64"),
+    *(
+        (f"up --config {{w}}/driver_{name}_{value}.yaml", f"{name}")
+        for name, value in DRIVER_OUT_OF_RANGE
+    ),
     ("simulate --command-csv {w} --out {w}/x.csv", "--command-csv"),
     ("simulate --duration 1e9 --rate 100 --out {w}/x.csv", "at most"),
     ("simulate --fault-at nan --fault-condition biofouling --out {w}/x.csv", "finite"),

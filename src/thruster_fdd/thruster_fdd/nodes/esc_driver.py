@@ -32,6 +32,7 @@ from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 from thruster_fdd.core.bridge.kiss import KissDecoder, KissFrame
 from thruster_fdd.core.bridge.link import (
+    ERROR,
     WARN,
     CommandWatchdog,
     LinkWindow,
@@ -52,6 +53,8 @@ from thruster_fdd.core.bridge.tfdd import (
     TelemetryFrame,
     encode_command,
 )
+from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.names import check_thruster_id
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
@@ -82,7 +85,9 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 )
 
 # Ranges and allowed values, in the descriptors (``ros2 param describe``, ``esc_driver --help``);
-# ``DriverSettings`` checks the rest (strictly positive rates) at configure.
+# ``DriverSettings`` checks every value against them again at configure (a value set after
+# start, a rounding at the edge), and ``thruster-fdd up`` checks its driver settings against the
+# same table before it starts anything. A bridge watchdog of 0 ms would stop every command.
 LIMITS: dict[str, Limit] = {
     "baud": (1200, 4_000_000),
     "protocol": ("tfdd", "kiss"),
@@ -91,7 +96,7 @@ LIMITS: dict[str, Limit] = {
     "command_rate_hz": (0.1, 1000.0),
     "command_timeout_s": (0.01, 60.0),
     "max_command_rate_per_s": (0.0, 1000.0),
-    "bridge_timeout_ms": (0, 65535),
+    "bridge_timeout_ms": (1, 65535),
     "reconnect_period_s": (0.01, 60.0),
     "diagnostics_period_s": (0.01, 3600.0),
 }
@@ -129,6 +134,10 @@ class DriverSettings:
     diagnostics_period_s: float
 
     def __post_init__(self) -> None:
+        try:
+            check_thruster_id(self.thruster_id)
+        except BadInputError as exc:
+            raise ValueError(f"parameter thruster_id: {exc}") from None
         if self.protocol not in ("tfdd", "kiss"):
             raise ValueError(f"parameter protocol must be 'tfdd' or 'kiss', got {self.protocol!r}")
         for name in (
@@ -142,10 +151,15 @@ class DriverSettings:
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"parameter {name} must be positive, got {getattr(self, name)}")
-        if not 0 <= self.bridge_timeout_ms <= 65535:
-            raise ValueError(
-                f"parameter bridge_timeout_ms must be 0..65535, got {self.bridge_timeout_ms}"
-            )
+        for name, limit in LIMITS.items():
+            value = getattr(self, name)
+            if isinstance(limit[0], str):
+                continue
+            low, high = limit
+            if not low <= value <= high:
+                raise ValueError(
+                    f"parameter {name} must be within {low:g}..{high:g}, got {value:g}"
+                )
 
 
 @dataclass(frozen=True)
@@ -233,7 +247,18 @@ class EscDriver(LifecycleNode):
                 diagnostics_period_s=float(p("diagnostics_period_s").value),
             )
         except ValueError as exc:
-            self.get_logger().error(f"cannot configure: {exc}")
+            reason = f"cannot configure: {exc}"
+            self.get_logger().error(reason)
+            thruster_id = str(p("thruster_id").value)
+            publish_status(
+                self,
+                self._diag_pub,
+                ERROR,
+                status_name("esc", thruster_id),
+                reason,
+                thruster_id,
+                [],
+            )
             return TransitionCallbackReturn.FAILURE
         self._settings = settings
         self._reset_state()

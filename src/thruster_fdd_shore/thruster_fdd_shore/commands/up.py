@@ -38,6 +38,7 @@ from thruster_fdd.core import atomic
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.names import check_thruster_id
 from thruster_fdd.core.safe_yaml import dump_yaml, load_yaml
 from thruster_fdd.lifetime import child_env, node_command, stop_children, stop_with_parent
 from thruster_fdd_shore.commands.common import (
@@ -143,8 +144,7 @@ class ThrusterPlan:
     bridge_timeout_ms: int | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.id, str) or not self.id.isidentifier():
-            raise BadInputError(f"thruster id {self.id!r} must be a ROS name token like t0")
+        check_thruster_id(self.id)
         if self.protocol not in PROTOCOLS:
             known = ", ".join(PROTOCOLS)
             raise BadInputError(
@@ -181,13 +181,24 @@ class ThrusterPlan:
             if isinstance(value, bool) or not isinstance(value, allowed):
                 kind = "an integer" if integral else "a number"
                 raise BadInputError(f"thruster {self.id}: {name} must be {kind}, got {value!r}")
-            lowest_ok = name in ("max_command_rate_per_s", "bridge_timeout_ms")
-            if not math.isfinite(value) or value < 0 or (value == 0 and not lowest_ok):
-                raise BadInputError(f"thruster {self.id}: {name} must be > 0, got {value}")
+            low, high = driver_limits()[name]
+            if not low <= value <= high:
+                raise BadInputError(
+                    f"thruster {self.id}: {name} must be within {low:g}..{high:g} (the "
+                    f"esc_driver's range), got {value:g}"
+                )
 
     def driver_settings(self) -> dict[str, int | float]:
         """The driver settings this plan sets (``DRIVER_SETTINGS`` that are not None)."""
         return {n: getattr(self, n) for n in DRIVER_SETTINGS if getattr(self, n) is not None}
+
+
+def driver_limits() -> dict[str, tuple[float, float]]:
+    """The esc_driver's declared ranges of the ``DRIVER_SETTINGS`` (``esc_driver.LIMITS``, the
+    ones its parameter descriptors and its configure check use), imported when first needed."""
+    from thruster_fdd.nodes.esc_driver import LIMITS
+
+    return {name: LIMITS[name] for name in DRIVER_SETTINGS}  # type: ignore[misc]
 
 
 @dataclass(frozen=True)
