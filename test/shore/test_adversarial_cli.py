@@ -67,6 +67,10 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     (d / "bomb.yaml").write_text(bomb + "thrusters: [*i]\n")
     (d / "binary.yaml").write_bytes(bytes(range(256)) * 4)
+    (d / "ttylink").symlink_to("/dev/null")
+    (d / "samedev.yaml").write_text(
+        f"thrusters: [{{id: t0, port: /dev/null}}, {{id: t1, port: {d / 'ttylink'}}}]\n"
+    )
     (d / "umlaut.yaml").write_text("thrusters: [{id: tä}]\n", encoding="utf-8")
     (d / "longid.yaml").write_text(f"thrusters: [{{id: {'t' * 300}}}]\n")
     for name, value in DRIVER_OUT_OF_RANGE:
@@ -118,6 +122,7 @@ DRIVER_OUT_OF_RANGE: list[tuple[str, str]] = [
 # (arguments with {w} for the work folder and {m} for the models, words the one line holds)
 BAD_INPUT: list[tuple[str, str]] = [
     ("up --config {w}/umlaut.yaml", "must be a ROS name token"),
+    ("up --config {w}/samedev.yaml", "same serial device /dev/null"),
     ("up --config {w}/longid.yaml", "at most 64"),
     *(
         (f"up --config {{w}}/driver_{name}_{value}.yaml", f"{name}")

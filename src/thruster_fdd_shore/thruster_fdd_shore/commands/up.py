@@ -370,9 +370,18 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise BadInputError("thruster ids must be unique")
-    ports = [p.port for p in plans if p.port is not None]
-    if len(set(ports)) != len(ports):
-        raise BadInputError("serial ports must be unique: one driver per port")
+    devices: dict[str, str] = {}
+    for plan in plans:
+        if plan.port is None:
+            continue
+        # The real device: a symlink (/dev/serial/by-id/...) and its target are one port.
+        device = os.path.realpath(plan.port)
+        if device in devices:
+            raise BadInputError(
+                f"thrusters {devices[device]} and {plan.id} use the same serial device {device}: "
+                "one driver per port"
+            )
+        devices[device] = plan.id
     for text in args.fault:
         tid, condition, at_s = _fault(text, set(by_id))
         by_id[tid] = ThrusterPlan(
