@@ -22,6 +22,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -255,6 +256,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=Path,
         help="folder with nominal/ and classifier/ exported models (default: the workspace's "
         "models/); a node whose model is absent is not started",
+    )
+    p.add_argument(
+        "--keep-run-dir",
+        action="store_true",
+        help="keep the run folder (ports, parameters, logs) after a clean exit; it is always "
+        "kept, and named, after a failure",
     )
     p.add_argument(
         "--executor",
@@ -586,6 +593,7 @@ def run(args: argparse.Namespace) -> int:
     executor.add_node(monitor)
     prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
     recorder_restarts = 0
+    clean = False  # the run folder is removed only after a clean run
     try:
         # The recorder starts first, so it is listening when the first telemetry comes.
         if not args.no_record:
@@ -649,6 +657,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"thruster-fdd up: {', '.join(dead)} exited; see {run_dir}", file=sys.stderr)
                 return EXIT_FAILED
         print(f"\nfinal:\n{monitor.table()}")
+        clean = True
         return EXIT_OK
     finally:
         if children.get("vehicle") is not None and children["vehicle"].poll() is None:
@@ -658,3 +667,7 @@ def run(args: argparse.Namespace) -> int:
         executor.shutdown()
         monitor.destroy_node()
         rclpy.try_shutdown()
+        if clean and not getattr(args, "keep_run_dir", False):
+            shutil.rmtree(run_dir, ignore_errors=True)
+        else:
+            print(f"thruster-fdd up: ports, parameters and logs kept in {run_dir}", file=sys.stderr)
