@@ -461,3 +461,24 @@ def test_oversized_card_is_refused_unread(tmp_path: Path) -> None:
     (folder / CARD_FILE).write_text('{"kind": "nominal", "pad": "' + "x" * MAX_CARD_BYTES + '"}')
     with pytest.raises(ModelMismatchError, match="larger than"):
         read_nominal_card(folder)
+
+
+def test_an_empty_split_of_a_bag_is_skipped_with_one_warning(
+    work: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A full disk leaves an empty split in the bag folder: the rest is diagnosed."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    shutil.copy(work / "ok.mcap", bag / "bag_0.mcap")
+    (bag / "bag_1.mcap").write_bytes(b"")
+    (bag / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  relative_file_paths: [bag_0.mcap, bag_1.mcap]\n"
+    )
+    code, err = _run(["diagnose", str(bag), "--models", str(MODELS)], capsys)
+    lines = [line for line in err.splitlines() if line]
+    assert code == 0, err
+    assert len(lines) == 1, err
+    assert "bag_1.mcap: split skipped (empty)" in lines[0]
+    (bag / "bag_0.mcap").write_bytes(b"")
+    code, err = _run(["diagnose", str(bag), "--models", str(MODELS)], capsys)
+    assert code == 2, err
