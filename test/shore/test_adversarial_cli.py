@@ -67,6 +67,16 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     (d / "bomb.yaml").write_text(bomb + "thrusters: [*i]\n")
     (d / "binary.yaml").write_bytes(bytes(range(256)) * 4)
+    (d / "ttylink").symlink_to("/dev/null")
+    (d / "samedev.yaml").write_text(
+        f"thrusters: [{{id: t0, port: /dev/null}}, {{id: t1, port: {d / 'ttylink'}}}]\n"
+    )
+    (d / "umlaut.yaml").write_text("thrusters: [{id: tä}]\n", encoding="utf-8")
+    (d / "longid.yaml").write_text(f"thrusters: [{{id: {'t' * 300}}}]\n")
+    for name, value in DRIVER_OUT_OF_RANGE:
+        (d / f"driver_{name}_{value}.yaml").write_text(
+            f"thrusters: [{{id: t0, port: /dev/null, {name}: {value}}}]\n"
+        )
     return d
 
 
@@ -100,8 +110,24 @@ def _appended(name: str) -> Callable[[Path], None]:
     return change
 
 
+DRIVER_OUT_OF_RANGE: list[tuple[str, str]] = [
+    ("bridge_timeout_ms", "70000"),
+    ("bridge_timeout_ms", "0"),
+    ("rate_hz", "100000.0"),
+    ("baud", "1e23"),
+    ("command_rate_hz", "1e-300"),
+]
+"""Driver settings outside the esc_driver's declared ranges (name, YAML value)."""
+
 # (arguments with {w} for the work folder and {m} for the models, words the one line holds)
 BAD_INPUT: list[tuple[str, str]] = [
+    ("up --config {w}/umlaut.yaml", "must be a ROS name token"),
+    ("up --config {w}/samedev.yaml", "same serial device /dev/null"),
+    ("up --config {w}/longid.yaml", "at most 64"),
+    *(
+        (f"up --config {{w}}/driver_{name}_{value}.yaml", f"{name}")
+        for name, value in DRIVER_OUT_OF_RANGE
+    ),
     ("simulate --command-csv {w} --out {w}/x.csv", "--command-csv"),
     ("simulate --duration 1e9 --rate 100 --out {w}/x.csv", "at most"),
     ("simulate --fault-at nan --fault-condition biofouling --out {w}/x.csv", "finite"),
@@ -375,3 +401,84 @@ def test_a_failed_train_nominal_leaves_the_old_model(
     assert "injected" in err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert sorted(p.name for p in work.iterdir() if p.name.startswith(".existing")) == []
+
+
+def _huge_header_weights(path: Path) -> None:
+    """A weights.npz whose one array header claims 10^12 float64 (8 TB) over 80 bytes of data."""
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        buf, {"descr": "<f8", "fortran_order": False, "shape": (10**12,)}
+    )
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("out.bias.npy", buf.getvalue() + bytes(80))
+
+
+def _nested_card(path: Path) -> None:
+    """A model card of 200,000 nested brackets."""
+    path.write_text('{"kind": "nominal", "files": ' + "[" * 200_000 + "]" * 200_000 + "}")
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [(_huge_header_weights, "header claims"), (_nested_card, "nested too deep")],
+    ids=["weights-header-1e12", "card-200000-brackets"],
+)
+def test_hostile_model_files_are_one_line_exit_2(
+    work: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    damage: Callable[[Path], None],
+    words: str,
+) -> None:
+    """Loaders bound what they read before allocating: no MemoryError or RecursionError."""
+    models = tmp_path / "models"
+    shutil.copytree(MODELS, models)
+    nominal = models / "nominal"
+    if damage is _nested_card:
+        damage(nominal / CARD_FILE)
+    else:
+        damage(nominal / "weights.npz")
+        card = json.loads((nominal / CARD_FILE).read_text())
+        card["files"]["weights.npz"] = file_sha256(nominal / "weights.npz")
+        (nominal / CARD_FILE).write_text(json.dumps(card))
+    code, err = _run(["diagnose", str(work / "ok.csv"), "--models", str(models)], capsys)
+    lines = [line for line in err.splitlines() if line]
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert words in lines[0], lines[0]
+
+
+def test_oversized_card_is_refused_unread(tmp_path: Path) -> None:
+    from thruster_fdd.core.artifact import MAX_CARD_BYTES
+    from thruster_fdd.core.errors import ModelMismatchError
+    from thruster_fdd.core.nominal.card import read_nominal_card
+
+    folder = tmp_path / "nominal"
+    shutil.copytree(MODELS / "nominal", folder)
+    (folder / CARD_FILE).write_text('{"kind": "nominal", "pad": "' + "x" * MAX_CARD_BYTES + '"}')
+    with pytest.raises(ModelMismatchError, match="larger than"):
+        read_nominal_card(folder)
+
+
+def test_an_empty_split_of_a_bag_is_skipped_with_one_warning(
+    work: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A full disk leaves an empty split in the bag folder: the rest is diagnosed."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    shutil.copy(work / "ok.mcap", bag / "bag_0.mcap")
+    (bag / "bag_1.mcap").write_bytes(b"")
+    (bag / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  relative_file_paths: [bag_0.mcap, bag_1.mcap]\n"
+    )
+    code, err = _run(["diagnose", str(bag), "--models", str(MODELS)], capsys)
+    lines = [line for line in err.splitlines() if line]
+    assert code == 0, err
+    assert len(lines) == 1, err
+    assert "bag_1.mcap: split skipped (empty)" in lines[0]
+    (bag / "bag_0.mcap").write_bytes(b"")
+    code, err = _run(["diagnose", str(bag), "--models", str(MODELS)], capsys)
+    assert code == 2, err

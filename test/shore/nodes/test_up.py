@@ -28,11 +28,14 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> No
     from thruster_fdd_shore.core.traces.files import bag_files
 
     cmd = ["thruster-fdd", "up", "--thrusters", "2", "--duration", "12", "--print-period", "2"]
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
     proc = subprocess.Popen(
         [*cmd, "--record-dir", str(tmp_path)],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        env={**os.environ, "TMPDIR": str(tmp)},
     )
     stages = sum(
         (default_models_dir() / folder / "model_card.json").is_file()
@@ -59,6 +62,7 @@ def test_up_runs_two_simulated_thrusters_and_stops_cleanly(tmp_path: Path) -> No
     for pid in children:
         stat = Path(f"/proc/{pid}/stat")
         assert not stat.exists() or " Z " in stat.read_text(), f"child {pid} still running"
+    assert not list(tmp.glob("thruster_fdd-up-*")), "the run folder is left after a clean run"
     (bag,) = tmp_path.glob("up_*")
     files = bag_files(bag)
     assert files, out

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 
@@ -11,6 +12,7 @@ from thruster_fdd.core.bridge.link import (
     OK,
     STALE,
     WARN,
+    CommandWatchdog,
     LinkWindow,
     assess_link,
     clamp_command,
@@ -123,3 +125,48 @@ def test_a_stale_period_still_names_the_faults_seen_before_the_silence() -> None
     assert assess_link(_window(frames=0, since_frame_s=0.3)).message == (
         "no telemetry for 0.3 s (expected 50 Hz)"
     )
+
+
+class _Clocks:
+    """A host clock and a monotonic clock the test moves by hand, ns."""
+
+    def __init__(self) -> None:
+        self.wall_ns = 1_800_000_000 * 10**9
+        self.mono_ns = 5 * 10**9
+
+    def advance(self, seconds: float, wall_step_s: float = 0.0) -> None:
+        self.mono_ns += round(seconds * 1e9)
+        self.wall_ns += round((seconds + wall_step_s) * 1e9)
+
+
+def test_watchdog_neutral_after_timeout_when_host_clock_steps_back(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    clocks = _Clocks()
+    monkeypatch.setattr(time, "time_ns", lambda: clocks.wall_ns)
+    monkeypatch.setattr(time, "monotonic_ns", lambda: clocks.mono_ns)
+    watchdog = CommandWatchdog(0.5, 0.0)  # the driver's default clock
+    watchdog.restart()
+    watchdog.command(0.8)
+    clocks.advance(0.05)
+    assert command_to_pwm(watchdog.step()) == 1820
+    assert not watchdog.neutral
+    # The host clock is stepped back 60 s while no command arrives.
+    clocks.advance(0.3, wall_step_s=-60.0)
+    assert command_to_pwm(watchdog.step()) == 1820
+    clocks.advance(0.3)
+    assert watchdog.step() == 0.0
+    assert watchdog.neutral
+
+
+def test_watchdog_slews_on_monotonic_intervals_and_refuses_non_finite() -> None:
+    clocks = _Clocks()
+    watchdog = CommandWatchdog(0.5, 4.0, clock_ns=lambda: clocks.mono_ns)
+    watchdog.command(1.0)
+    clocks.advance(0.05)
+    assert watchdog.step() == pytest.approx(0.2)
+    with pytest.raises(ValueError, match="finite"):
+        watchdog.command(math.nan)
+    assert watchdog.target == 1.0
+    watchdog.stop()
+    assert watchdog.applied == watchdog.target == 0.0

@@ -147,3 +147,17 @@ def test_a_callback_that_raises_in_one_thruster_thread_stops_the_container() -> 
     )
     assert out.returncode == 1
     assert "thruster t1: a callback raised ZeroDivisionError('boom')" in out.stderr
+
+
+@pytest.mark.parametrize("tid", ["tä", "t" * 300])
+def test_a_thruster_id_that_is_no_ros_name_is_one_line_exit_2(tid: str) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "thruster_fdd.nodes.container", "esc_driver", "--thrusters", tid],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert "thruster id" in out.stderr
+    assert "Traceback" not in out.stderr

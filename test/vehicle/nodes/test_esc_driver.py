@@ -404,3 +404,40 @@ def test_lifecycle_transitions_walked_on_a_pty(tmp_path: Path, quiet_t100: objec
             stop_children({"esc_driver": driver}, timeout_s=10.0)
             stop_event.set()
             thread.join(timeout=5)
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("bridge_timeout_ms", 0),
+        ("bridge_timeout_ms", 70000),
+        ("rate_hz", 100000.0),
+        ("command_rate_hz", 1e-300),
+        ("baud", 10**23),
+    ],
+)
+def test_settings_out_of_the_declared_range_are_refused_at_configure(
+    name: str, value: float
+) -> None:
+    from dataclasses import replace
+
+    from thruster_fdd.nodes.esc_driver import DriverSettings
+
+    good = DriverSettings(
+        thruster_id="t0",
+        port="/dev/null",
+        baud=115200,
+        protocol="tfdd",
+        rate_hz=50.0,
+        pole_pairs=7,
+        command_rate_hz=20.0,
+        command_timeout_s=0.5,
+        max_command_rate_per_s=4.0,
+        bridge_timeout_ms=500,
+        reconnect_period_s=0.25,
+        diagnostics_period_s=1.0,
+    )
+    with pytest.raises(ValueError, match=rf"parameter {name} must be within"):
+        replace(good, **{name: value})
+    with pytest.raises(ValueError, match="thruster_id"):
+        replace(good, thruster_id="tä")

@@ -193,6 +193,10 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
     raise TypeError(f"card field type {hint!r} is not supported")
 
 
+MAX_CARD_BYTES = 1 << 20
+"""Largest model card file read (the shipped cards: a few KB); a larger one is refused unread."""
+
+
 def read_card(model_dir: str | Path, card_type: type[CardT], kind: str) -> CardT:
     """Read ``model_dir/model_card.json`` into ``card_type``, checking every field.
 
@@ -216,15 +220,25 @@ def read_card(model_dir: str | Path, card_type: type[CardT], kind: str) -> CardT
     ------
     ModelMismatchError
         Naming the file and what is wrong: missing, not JSON, not an object, another kind or
-        format version, a missing, unknown or mistyped field, a non-finite number.
+        format version, a missing, unknown or mistyped field, a non-finite number; a file larger
+        than ``MAX_CARD_BYTES`` or nested too deep to parse.
     """
     path = Path(model_dir) / CARD_FILE
     if not path.is_file():
         raise ModelMismatchError(f"{path}: model card missing")
     try:
-        raw = json.loads(path.read_text())
+        with path.open("rb") as f:
+            data = f.read(MAX_CARD_BYTES + 1)
+    except OSError as exc:
+        raise ModelMismatchError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if len(data) > MAX_CARD_BYTES:
+        raise ModelMismatchError(f"{path}: larger than {MAX_CARD_BYTES} bytes, not a model card")
+    try:
+        raw = json.loads(data.decode("utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ModelMismatchError(f"{path}: not valid JSON ({exc})") from exc
+    except RecursionError:
+        raise ModelMismatchError(f"{path}: nested too deep, not a model card") from None
     if not isinstance(raw, dict):
         raise ModelMismatchError(f"{path}: expected a JSON object, got {type(raw).__name__}")
     if raw.get("kind") != kind:
@@ -294,6 +308,28 @@ MAX_WEIGHTS_BYTES = 64 << 20
 one is refused before anything is decompressed."""
 
 
+def _member_array_bytes(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> int:
+    """Bytes the array in one ``.npy`` member of a weights archive claims, read from its header
+    (before numpy allocates it); ValueError when the header is not one of a plain array or the
+    claim exceeds what the member holds."""
+    with archive.open(info) as member:
+        version = np.lib.format.read_magic(member)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+        elif version in ((2, 0), (3, 0)):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+        else:
+            raise ValueError(f"{info.filename}: .npy format version {version}")
+    if dtype.hasobject:
+        raise ValueError(f"{info.filename}: object arrays are refused")
+    claimed = math.prod(shape) * dtype.itemsize
+    if claimed > info.file_size:
+        raise ValueError(
+            f"{info.filename}: header claims {claimed} bytes, the member holds {info.file_size}"
+        )
+    return claimed
+
+
 def load_weights(model_dir: str | Path, card: ModelCard) -> dict[str, np.ndarray]:
     """The named weight arrays (float64) of an exported model, after ``check_files``.
 
@@ -301,21 +337,25 @@ def load_weights(model_dir: str | Path, card: ModelCard) -> dict[str, np.ndarray
     ------
     ModelMismatchError
         Naming the file: a listed file missing or changed, or a weights file that is not an
-        ``.npz`` of plain numeric arrays (pickled objects are refused, never loaded) or unpacks
-        to more than ``MAX_WEIGHTS_BYTES``.
+        ``.npz`` of plain numeric arrays (pickled objects are refused, never loaded), unpacks
+        to more than ``MAX_WEIGHTS_BYTES`` or has an array header claiming more data than its
+        member holds (checked from the headers, before any array is allocated).
     """
     check_files(model_dir, card)
     path = Path(model_dir) / WEIGHTS_FILE
     try:
         with zipfile.ZipFile(path) as archive:
-            size = sum(info.file_size for info in archive.infolist())
-        if size > MAX_WEIGHTS_BYTES:
-            raise ModelMismatchError(
-                f"{path}: {size} bytes of arrays unpacked, more than {MAX_WEIGHTS_BYTES}"
-            )
+            members = archive.infolist()
+            size = sum(info.file_size for info in members)
+            if size > MAX_WEIGHTS_BYTES:
+                raise ModelMismatchError(
+                    f"{path}: {size} bytes of arrays unpacked, more than {MAX_WEIGHTS_BYTES}"
+                )
+            for info in members:
+                _member_array_bytes(archive, info)
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: np.array(npz[k], dtype=np.float64) for k in npz.files}
-    except (OSError, ValueError, zipfile.BadZipFile, TypeError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, TypeError, EOFError) as exc:
         raise ModelMismatchError(f"{path}: not a weights file of numeric arrays ({exc})") from exc
     bad = [k for k, v in arrays.items() if not np.all(np.isfinite(v))]
     if bad:

@@ -32,6 +32,7 @@ from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.names import check_thruster_id
 from thruster_fdd.lifetime import stop_with_parent
 
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -240,7 +241,19 @@ def subscribe_thrusters(
     qos: QoSProfile,
 ) -> None:
     """Subscribe ``node`` to ``/thruster/<id>/<topic>`` of every thruster; ``callback(id, msg)``
-    gets each message with the id of the thruster that sent it."""
+    gets each message with the id of the thruster that sent it.
+
+    Raises
+    ------
+    BadParameterError
+        If an id is not a valid thruster id (``core.names.check_thruster_id``).
+    """
+    thruster_ids = list(thruster_ids)
+    for tid in thruster_ids:
+        try:
+            check_thruster_id(tid)
+        except BadInputError as exc:
+            raise BadParameterError(f"parameter thruster_ids: {exc}") from None
     for tid in thruster_ids:
         node.create_subscription(
             msg_type,

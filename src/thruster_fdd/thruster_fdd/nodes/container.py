@@ -34,6 +34,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.parameter import Parameter
 from rclpy.utilities import remove_ros_args
 
+from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.names import check_thruster_id
 from thruster_fdd.lifetime import stop_with_parent
 from thruster_fdd.nodes.common import (
     BadParameterError,
@@ -141,6 +143,12 @@ def main(argv: list[str] | None = None) -> None:
         "parameters file",
     )
     args = parser.parse_args(remove_ros_args(argv)[1:])
+    try:
+        for tid in args.thrusters:
+            check_thruster_id(tid)
+    except BadInputError as exc:
+        print(f"container {' '.join(args.kinds)}: {exc}", file=sys.stderr)
+        sys.exit(2)
     try:
         params = parse_parameters(args.kinds, args.params)
         kind = executor_kind()

@@ -25,20 +25,21 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import qos_profile_sensor_data
 from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 from thruster_fdd.core.bridge.kiss import KissDecoder, KissFrame
 from thruster_fdd.core.bridge.link import (
+    ERROR,
     WARN,
+    CommandWatchdog,
     LinkWindow,
     assess_link,
-    clamp_command,
     command_to_pwm,
     frame_stamps,
     pwm_to_command,
-    slew,
 )
 from thruster_fdd.core.bridge.plausibility import TelemetrySample, check_telemetry, to_sample
 from thruster_fdd.core.bridge.ports import SerialLink, SerialPorts
@@ -52,6 +53,8 @@ from thruster_fdd.core.bridge.tfdd import (
     TelemetryFrame,
     encode_command,
 )
+from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.names import check_thruster_id
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
@@ -82,7 +85,9 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 )
 
 # Ranges and allowed values, in the descriptors (``ros2 param describe``, ``esc_driver --help``);
-# ``DriverSettings`` checks the rest (strictly positive rates) at configure.
+# ``DriverSettings`` checks every value against them again at configure (a value set after
+# start, a rounding at the edge), and ``thruster-fdd up`` checks its driver settings against the
+# same table before it starts anything. A bridge watchdog of 0 ms would stop every command.
 LIMITS: dict[str, Limit] = {
     "baud": (1200, 4_000_000),
     "protocol": ("tfdd", "kiss"),
@@ -91,7 +96,7 @@ LIMITS: dict[str, Limit] = {
     "command_rate_hz": (0.1, 1000.0),
     "command_timeout_s": (0.01, 60.0),
     "max_command_rate_per_s": (0.0, 1000.0),
-    "bridge_timeout_ms": (0, 65535),
+    "bridge_timeout_ms": (1, 65535),
     "reconnect_period_s": (0.01, 60.0),
     "diagnostics_period_s": (0.01, 3600.0),
 }
@@ -129,6 +134,10 @@ class DriverSettings:
     diagnostics_period_s: float
 
     def __post_init__(self) -> None:
+        try:
+            check_thruster_id(self.thruster_id)
+        except BadInputError as exc:
+            raise ValueError(f"parameter thruster_id: {exc}") from None
         if self.protocol not in ("tfdd", "kiss"):
             raise ValueError(f"parameter protocol must be 'tfdd' or 'kiss', got {self.protocol!r}")
         for name in (
@@ -142,10 +151,15 @@ class DriverSettings:
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"parameter {name} must be positive, got {getattr(self, name)}")
-        if not 0 <= self.bridge_timeout_ms <= 65535:
-            raise ValueError(
-                f"parameter bridge_timeout_ms must be 0..65535, got {self.bridge_timeout_ms}"
-            )
+        for name, limit in LIMITS.items():
+            value = getattr(self, name)
+            if isinstance(limit[0], str):
+                continue
+            low, high = limit
+            if not low <= value <= high:
+                raise ValueError(
+                    f"parameter {name} must be within {low:g}..{high:g}, got {value:g}"
+                )
 
 
 @dataclass(frozen=True)
@@ -182,17 +196,17 @@ class EscDriver(LifecycleNode):
             self._autostart_timer = self.create_timer(0.0, self._autostart)
 
     def _reset_state(self) -> None:
-        # Command state (executor thread only).
-        self._target = 0.0
-        self._applied = 0.0
-        self._last_command_ns: int | None = None
-        self._last_send_ns = time.time_ns()
+        # Command state (executor thread only); its intervals on the monotonic clock.
+        settings = self._settings
+        self._commands = CommandWatchdog(
+            settings.command_timeout_s if settings else 0.5,
+            settings.max_command_rate_per_s if settings else 0.0,
+        )
         self._tx_seq = 0
-        self._watchdog = True
         # Telemetry state (executor thread only, but the decoder statistics).
         self._sequence = SequenceWindow()
         self._kiss_seq = 0
-        self._last_frame_ns: int | None = None
+        self._last_frame_mono_ns: int | None = None  # monotonic, for staleness
         self._counts = {"frames": 0, "rejected": 0}
         self._reject_reason = ""
         self._bridge_faults = ""
@@ -233,16 +247,29 @@ class EscDriver(LifecycleNode):
                 diagnostics_period_s=float(p("diagnostics_period_s").value),
             )
         except ValueError as exc:
-            self.get_logger().error(f"cannot configure: {exc}")
+            reason = f"cannot configure: {exc}"
+            self.get_logger().error(reason)
+            thruster_id = str(p("thruster_id").value)
+            publish_status(
+                self,
+                self._diag_pub,
+                ERROR,
+                status_name("esc", thruster_id),
+                reason,
+                thruster_id,
+                [],
+            )
             return TransitionCallbackReturn.FAILURE
         self._settings = settings
         self._reset_state()
         self._pub = self.create_lifecycle_publisher(
             EscTelemetry, "esc/telemetry", qos_profile_sensor_data, event_callbacks=NO_PUB_EVENTS
         )
-        # Commands are sent only while active (on_activate starts the timer).
+        # Commands are sent only while active (on_activate starts the timer). Both timers run
+        # on the steady clock: a host clock stepped back must not stall commands or status.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._command_timer = self.create_timer(
-            1.0 / settings.command_rate_hz, self._send_command, autostart=False
+            1.0 / settings.command_rate_hz, self._send_command, autostart=False, clock=steady
         )
         command_sub = self.create_subscription(
             ThrusterCommand,
@@ -251,7 +278,9 @@ class EscDriver(LifecycleNode):
             RELIABLE_10,
             event_callbacks=NO_SUB_EVENTS,
         )
-        diag_timer = self.create_timer(settings.diagnostics_period_s, self._publish_diagnostics)
+        diag_timer = self.create_timer(
+            settings.diagnostics_period_s, self._publish_diagnostics, clock=steady
+        )
         self._entities = [
             (self.destroy_lifecycle_publisher, self._pub),
             (self.destroy_subscription, command_sub),
@@ -274,8 +303,7 @@ class EscDriver(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._last_command_ns = None
-        self._last_send_ns = time.time_ns()
+        self._commands.restart()
         self._command_timer.reset()
         self._active = True
         return super().on_activate(state)
@@ -283,7 +311,7 @@ class EscDriver(LifecycleNode):
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._active = False
         self._command_timer.cancel()
-        self._applied = self._target = 0.0
+        self._commands.stop()
         self._write_command(0.0)
         return super().on_deactivate(state)
 
@@ -375,7 +403,8 @@ class EscDriver(LifecycleNode):
     def _handle_kiss(self, frame: KissFrame, stamp_ns: int) -> None:
         self._kiss_seq += 1
         # KISS carries no sign: the direction is the one the driver commands.
-        sign = -1.0 if self._applied < 0 else 1.0
+        applied = self._commands.applied
+        sign = -1.0 if applied < 0 else 1.0
         sample = to_sample(frame)
         sample = TelemetrySample(
             voltage_v=sample.voltage_v,
@@ -384,10 +413,8 @@ class EscDriver(LifecycleNode):
             temperature_c=sample.temperature_c,
             consumption_mah=sample.consumption_mah,
         )
-        pwm = command_to_pwm(self._applied)
-        self._publish(
-            self._kiss_seq, sample, self._applied, pwm, stamp_ns, EscTelemetry.NO_COMMAND_ECHO
-        )
+        pwm = command_to_pwm(applied)
+        self._publish(self._kiss_seq, sample, applied, pwm, stamp_ns, EscTelemetry.NO_COMMAND_ECHO)
 
     def _publish(
         self,
@@ -404,14 +431,14 @@ class EscDriver(LifecycleNode):
             self._reject_reason = problems[0]
             return
         self._counts["frames"] += 1
-        self._last_frame_ns = stamp_ns
+        self._last_frame_mono_ns = time.monotonic_ns()
         if not self._active:
             return  # inactive: the link is watched, nothing is published
         stats = self._decoder_stats
         window_stats = self._window_start[1]
         if stats.crc_errors > window_stats.crc_errors:
             flags |= EscTelemetry.CRC_ERRORS
-        if self._watchdog:
+        if self._commands.neutral:
             flags |= EscTelemetry.WATCHDOG_NEUTRAL
         if self._bridge_faults:
             flags |= EscTelemetry.BRIDGE_FAULT
@@ -437,26 +464,15 @@ class EscDriver(LifecycleNode):
 
     def _on_command(self, msg: ThrusterCommand) -> None:
         try:
-            self._target = clamp_command(msg.command)
+            self._commands.command(msg.command)
         except ValueError as exc:
             self.get_logger().warning(f"refused command: {exc}", throttle_duration_sec=1.0)
-            return
-        self._last_command_ns = time.time_ns()
 
     def _send_command(self) -> None:
         settings = self._settings
         if settings is None or not self._active:
             return
-        now = time.time_ns()
-        self._watchdog = (
-            self._last_command_ns is None
-            or (now - self._last_command_ns) * 1e-9 > settings.command_timeout_s
-        )
-        target = 0.0 if self._watchdog else self._target
-        dt = (now - self._last_send_ns) * 1e-9
-        self._last_send_ns = now
-        self._applied = slew(self._applied, target, dt, settings.max_command_rate_per_s)
-        self._write_command(self._applied)
+        self._write_command(self._commands.step())
 
     def _write_command(self, command: float) -> None:
         if self._link is None or self._settings is None:
@@ -474,8 +490,8 @@ class EscDriver(LifecycleNode):
         start_counts, start_stats, start_seq = self._window_start
         stats = self._decoder_stats
         seq = self._sequence.counts()
-        now = time.time_ns()
-        since = None if self._last_frame_ns is None else (now - self._last_frame_ns) * 1e-9
+        last = self._last_frame_mono_ns
+        since = None if last is None else (time.monotonic_ns() - last) * 1e-9
         window = LinkWindow(
             period_s=settings.diagnostics_period_s,
             expected_rate_hz=settings.rate_hz,
@@ -495,7 +511,7 @@ class EscDriver(LifecycleNode):
             rejected=self._counts["rejected"] - start_counts["rejected"],
             reject_reason=self._reject_reason,
             since_frame_s=since,
-            watchdog_neutral=self._watchdog,
+            watchdog_neutral=self._commands.neutral,
             bridge_faults=self._bridge_faults,
             reconnects=link.reconnects,
         )

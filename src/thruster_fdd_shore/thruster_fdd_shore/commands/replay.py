@@ -37,7 +37,7 @@ from thruster_fdd_shore.commands.common import (
     check_output,
     positive_float,
 )
-from thruster_fdd_shore.core.traces.files import bag_files, is_bag
+from thruster_fdd_shore.core.traces.files import is_bag, read_splits
 from thruster_fdd_shore.core.traces.replay_check import (
     ReplayCheck,
     ThrusterBag,
@@ -369,11 +369,7 @@ def run(args: argparse.Namespace) -> int:
     from thruster_fdd.core.artifact import default_models_dir
     from thruster_fdd.core.nominal.card import read_nominal_card
 
-    if is_bag(args.bag):
-        files = bag_files(args.bag)
-    elif args.bag.is_file():
-        files = [args.bag]
-    else:
+    if not (is_bag(args.bag) or args.bag.is_file()):
         raise BadInputError(f"{args.bag}: no such recording (an MCAP file or a bag folder)")
     if not 0.0 <= args.min_agreement <= 1.0:
         raise BadInputError(f"--min-agreement must be within 0..1, got {args.min_agreement}")
@@ -382,7 +378,10 @@ def run(args: argparse.Namespace) -> int:
     models = (args.models or default_models_dir()).resolve()
     check_models(models)
     period_s = read_nominal_card(models / "nominal").sample_time_s
-    bags = merge_bags([load_bag(file, period_s) for file in files])
+    if is_bag(args.bag):  # an empty or damaged split is skipped with a warning
+        bags = merge_bags(read_splits(args.bag, lambda file: load_bag(file, period_s)))
+    else:
+        bags = merge_bags([load_bag(args.bag, period_s)])
     procs = _start_nodes(bags, models)
     try:
         replayer = Replayer(bags, (models / "classifier" / CARD_FILE).is_file())

@@ -22,6 +22,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -38,6 +39,7 @@ from thruster_fdd.core import atomic
 from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.names import check_thruster_id
 from thruster_fdd.core.safe_yaml import dump_yaml, load_yaml
 from thruster_fdd.lifetime import child_env, node_command, stop_children, stop_with_parent
 from thruster_fdd_shore.commands.common import (
@@ -143,8 +145,7 @@ class ThrusterPlan:
     bridge_timeout_ms: int | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.id, str) or not self.id.isidentifier():
-            raise BadInputError(f"thruster id {self.id!r} must be a ROS name token like t0")
+        check_thruster_id(self.id)
         if self.protocol not in PROTOCOLS:
             known = ", ".join(PROTOCOLS)
             raise BadInputError(
@@ -181,13 +182,24 @@ class ThrusterPlan:
             if isinstance(value, bool) or not isinstance(value, allowed):
                 kind = "an integer" if integral else "a number"
                 raise BadInputError(f"thruster {self.id}: {name} must be {kind}, got {value!r}")
-            lowest_ok = name in ("max_command_rate_per_s", "bridge_timeout_ms")
-            if not math.isfinite(value) or value < 0 or (value == 0 and not lowest_ok):
-                raise BadInputError(f"thruster {self.id}: {name} must be > 0, got {value}")
+            low, high = driver_limits()[name]
+            if not low <= value <= high:
+                raise BadInputError(
+                    f"thruster {self.id}: {name} must be within {low:g}..{high:g} (the "
+                    f"esc_driver's range), got {value:g}"
+                )
 
     def driver_settings(self) -> dict[str, int | float]:
         """The driver settings this plan sets (``DRIVER_SETTINGS`` that are not None)."""
         return {n: getattr(self, n) for n in DRIVER_SETTINGS if getattr(self, n) is not None}
+
+
+def driver_limits() -> dict[str, tuple[float, float]]:
+    """The esc_driver's declared ranges of the ``DRIVER_SETTINGS`` (``esc_driver.LIMITS``, the
+    ones its parameter descriptors and its configure check use), imported when first needed."""
+    from thruster_fdd.nodes.esc_driver import LIMITS
+
+    return {name: LIMITS[name] for name in DRIVER_SETTINGS}  # type: ignore[misc]
 
 
 @dataclass(frozen=True)
@@ -244,6 +256,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=Path,
         help="folder with nominal/ and classifier/ exported models (default: the workspace's "
         "models/); a node whose model is absent is not started",
+    )
+    p.add_argument(
+        "--keep-run-dir",
+        action="store_true",
+        help="keep the run folder (ports, parameters, logs) after a clean exit; it is always "
+        "kept, and named, after a failure",
     )
     p.add_argument(
         "--executor",
@@ -359,9 +377,18 @@ def plan_from_args(args: argparse.Namespace) -> tuple[float, tuple[ThrusterPlan,
     by_id = {p.id: p for p in plans}
     if len(by_id) != len(plans):
         raise BadInputError("thruster ids must be unique")
-    ports = [p.port for p in plans if p.port is not None]
-    if len(set(ports)) != len(ports):
-        raise BadInputError("serial ports must be unique: one driver per port")
+    devices: dict[str, str] = {}
+    for plan in plans:
+        if plan.port is None:
+            continue
+        # The real device: a symlink (/dev/serial/by-id/...) and its target are one port.
+        device = os.path.realpath(plan.port)
+        if device in devices:
+            raise BadInputError(
+                f"thrusters {devices[device]} and {plan.id} use the same serial device {device}: "
+                "one driver per port"
+            )
+        devices[device] = plan.id
     for text in args.fault:
         tid, condition, at_s = _fault(text, set(by_id))
         by_id[tid] = ThrusterPlan(
@@ -566,6 +593,7 @@ def run(args: argparse.Namespace) -> int:
     executor.add_node(monitor)
     prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
     recorder_restarts = 0
+    clean = False  # the run folder is removed only after a clean run
     try:
         # The recorder starts first, so it is listening when the first telemetry comes.
         if not args.no_record:
@@ -629,6 +657,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"thruster-fdd up: {', '.join(dead)} exited; see {run_dir}", file=sys.stderr)
                 return EXIT_FAILED
         print(f"\nfinal:\n{monitor.table()}")
+        clean = True
         return EXIT_OK
     finally:
         if children.get("vehicle") is not None and children["vehicle"].poll() is None:
@@ -638,3 +667,7 @@ def run(args: argparse.Namespace) -> int:
         executor.shutdown()
         monitor.destroy_node()
         rclpy.try_shutdown()
+        if clean and not getattr(args, "keep_run_dir", False):
+            shutil.rmtree(run_dir, ignore_errors=True)
+        else:
+            print(f"thruster-fdd up: ports, parameters and logs kept in {run_dir}", file=sys.stderr)

@@ -7,6 +7,8 @@ Health levels are the values of ``diagnostic_msgs/DiagnosticStatus`` (OK, WARN, 
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from thruster_fdd.core.bridge.tfdd import NEUTRAL_PWM_US, PWM_PER_UNIT
@@ -37,6 +39,65 @@ def slew(previous: float, target: float, dt_s: float, max_rate_per_s: float) -> 
         return target
     step = max_rate_per_s * max(0.0, dt_s)
     return previous + min(step, max(-step, target - previous))
+
+
+class CommandWatchdog:
+    """The driver's command state: the target, the watchdog and the slew-limited output.
+
+    Every interval is measured on a monotonic clock, so a host clock stepped back (or forward)
+    neither keeps the last command going nor cuts it short.
+
+    Parameters
+    ----------
+    timeout_s : float
+        No command for longer than this -> the target is neutral, s.
+    max_rate_per_s : float
+        Slew limit of the output, 1/s (``<= 0`` disables it).
+    clock_ns : callable, optional
+        Monotonic clock, ns; ``time.monotonic_ns`` when None.
+    """
+
+    def __init__(
+        self,
+        timeout_s: float,
+        max_rate_per_s: float,
+        clock_ns: Callable[[], int] | None = None,
+    ) -> None:
+        self.timeout_s = timeout_s
+        self.max_rate_per_s = max_rate_per_s
+        self._clock_ns = clock_ns or time.monotonic_ns
+        self.target = 0.0
+        self.applied = 0.0
+        self.neutral = True
+        self._last_command_ns: int | None = None
+        self._last_step_ns = self._clock_ns()
+
+    def restart(self) -> None:
+        """Forget the last command (neutral until a new one) and restart the slew interval."""
+        self._last_command_ns = None
+        self._last_step_ns = self._clock_ns()
+
+    def stop(self) -> None:
+        """Output and target neutral at once (deactivate, shutdown)."""
+        self.applied = self.target = 0.0
+
+    def command(self, value: float) -> None:
+        """Take a new command (clamped; ``ValueError`` for a non-finite one, not taken)."""
+        self.target = clamp_command(value)
+        self._last_command_ns = self._clock_ns()
+
+    def step(self) -> float:
+        """The output to send now: the target, or neutral once the watchdog fired, slewed."""
+        now = self._clock_ns()
+        self.neutral = (
+            self._last_command_ns is None
+            or not (now - self._last_command_ns) * 1e-9 <= self.timeout_s
+        )
+        target = 0.0 if self.neutral else self.target
+        dt = (now - self._last_step_ns) * 1e-9
+        self._last_step_ns = now
+        self.applied = slew(self.applied, target, dt, self.max_rate_per_s)
+        return self.applied
 
 
 def command_to_pwm(command: float) -> int:

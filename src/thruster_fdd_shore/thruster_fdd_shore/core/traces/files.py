@@ -4,13 +4,15 @@ them."""
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterable
+import warnings
+from collections.abc import Callable, Iterable
 from dataclasses import replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
-from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.errors import BadInputError, PartialInputWarning
 from thruster_fdd.core.safe_yaml import load_yaml
 from thruster_fdd.core.traces.data import Trace
 from thruster_fdd.core.traces.mcap_io import read_trace_mcap, write_trace_mcap
@@ -18,6 +20,8 @@ from thruster_fdd.core.traces.recording import BAG_METADATA
 from thruster_fdd_shore.core.traces.csv_io import read_trace_csv, write_trace_csv
 
 SUFFIXES = (".csv", ".mcap")
+
+T = TypeVar("T")
 
 
 def is_bag(path: str | Path) -> bool:
@@ -83,11 +87,41 @@ def _concat(parts: list[Trace]) -> Trace:
     return replace(trace, labels=names)
 
 
-def read_bag(folder: str | Path) -> list[Trace]:
-    """Every thruster's telemetry in a bag folder, one trace per thruster across its files."""
-    by_id: dict[str | None, list[Trace]] = {}
+def read_splits(folder: str | Path, read: Callable[[Path], T]) -> list[T]:
+    """``read(file)`` of every MCAP file of a bag folder (``bag_files``), skipping a split that
+    cannot be read (empty, as a full disk leaves them, or damaged) with a one-line
+    ``PartialInputWarning`` naming it.
+
+    Raises
+    ------
+    BadInputError
+        If ``folder`` is not a bag, or no split of it can be read (the first split's reason).
+    """
+    results: list[T] = []
+    refused: list[tuple[Path, BadInputError]] = []
     for file in bag_files(folder):
-        for trace in read_trace_mcap(file):
+        try:
+            results.append(read(file))
+        except BadInputError as exc:
+            refused.append((file, exc))
+    if not results:
+        raise refused[0][1]
+    for file, exc in refused:
+        size = file.stat().st_size if file.exists() else 0
+        why = "empty" if size == 0 else str(exc).removeprefix(f"{file}: ")
+        warnings.warn(
+            PartialInputWarning(f"{file}: split skipped ({why}); the rest of the bag is read"),
+            stacklevel=2,
+        )
+    return results
+
+
+def read_bag(folder: str | Path) -> list[Trace]:
+    """Every thruster's telemetry in a bag folder, one trace per thruster across its files (a
+    split that cannot be read is skipped with a warning, ``read_splits``)."""
+    by_id: dict[str | None, list[Trace]] = {}
+    for traces in read_splits(folder, read_trace_mcap):
+        for trace in traces:
             by_id.setdefault(trace.thruster_id, []).append(trace)
     return [_concat(parts) for _, parts in sorted(by_id.items(), key=lambda kv: str(kv[0]))]
 
