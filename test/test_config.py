@@ -77,9 +77,9 @@ def _fields(type_name: str) -> dict[str, str]:
 
 
 TOPIC_TYPES = {
-    r"/thruster/\w+/esc/telemetry": "thruster_fdd_msgs/EscTelemetry",
-    r"/thruster/\w+/fdd/residual": "thruster_fdd_msgs/Residual",
-    r"/thruster/\w+/fdd/diagnosis": "thruster_fdd_msgs/Diagnosis",
+    r"(/studio_script)?/thruster/(\w+/)?esc/telemetry": "thruster_fdd_msgs/EscTelemetry",
+    r"(/studio_script)?/thruster/(\w+/)?fdd/residual": "thruster_fdd_msgs/Residual",
+    r"(/studio_script)?/thruster/(\w+/)?fdd/diagnosis": "thruster_fdd_msgs/Diagnosis",
     r"/thruster_fdd/health": "thruster_fdd_msgs/VehicleHealth",
     r"/diagnostics": "diagnostic_msgs/DiagnosticArray",
 }
@@ -88,6 +88,7 @@ TOPIC_TYPES = {
 def _resolve(path: str) -> None:
     """Fail unless a Foxglove message path names a topic of ours and fields of its type."""
     topic, _, rest = path.partition(".")
+    topic, _, _ = topic.partition("{")  # a filter on the message itself: /topic{field==x}.y
     types = [t for pattern, t in TOPIC_TYPES.items() if re.fullmatch(pattern, topic)]
     assert types, f"{path}: unknown topic"
     type_name = types[0]

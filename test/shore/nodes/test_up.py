@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -164,6 +165,21 @@ def test_a_live_fault_recorded_by_up_replays_to_the_same_diagnoses(tmp_path: Pat
     print(replay.stdout)
     assert "expected (recorded)" in replay.stdout
     assert replay.returncode == 0, replay.stdout + replay.stderr[-2000:]
+    # The same windows as live, decision for decision (``unknown`` included): the bag holds the
+    # first samples the live model used (up waits for the recorder), and replay and diagnose
+    # decide on the samples the live model used (issue 50, item 1).
+    (thruster,) = json.loads((tmp_path / "r.json").read_text())["thrusters"]
+    assert thruster["agreement"] == 1.0, thruster
+    replayed = [(round(t, 3), label) for t, label in thruster["diagnoses"]]
+    offline = subprocess.run(
+        ["thruster-fdd", "diagnose", str(bag), "--json", str(tmp_path / "d.json")],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert offline.returncode == 0, offline.stderr[-2000:]
+    windows = json.loads((tmp_path / "d.json").read_text())["windows"]
+    assert replayed == [(round(w["t_end"], 3), w["label"]) for w in windows]
 
 
 def test_kill_9_of_up_still_finishes_the_bag(tmp_path: Path) -> None:

@@ -6,7 +6,10 @@ transient-local, deep, when every publisher is, so the history published before 
 matched — the first residuals of a run — is recorded too, as rosbag2 does), and
 hands the bytes to ``core.traces.recording.McapRecorder``, which writes the bag folder
 ``<output_dir>/<prefix>`` with its ``metadata.yaml``; the publishers' QoS profiles and type
-hashes go into the bag (``ros2 bag play`` offers the same QoS again). A topic first seen through
+hashes go into the bag (``ros2 bag play`` offers the same QoS again). Its ``/diagnostics``
+status lists in ``matched`` the topics whose subscription has matched a publisher, published
+at once when that changes: ``up`` activates the drivers only when their telemetry is matched,
+so a bag holds every sample the live models used (docs/contracts.md). A topic first seen through
 its subscribers only (under ``up`` the drivers' publishers come at *configure*, after the nominal
 models subscribed) is subscribed at once with the fallback QoS (best effort, volatile), and its
 publishers' QoS and type hash are taken when they appear, as rosbag2's recorder adapts: looked
@@ -134,6 +137,9 @@ class Recorder(Node):
         self._last_attempt = 0.0
         self._retry_after = 0.0
         self._subscribed: dict[str, str] = {}
+        # topic -> its subscription, and the topics whose subscription has matched a publisher.
+        self._recorded_subs: dict[str, Any] = {}
+        self._matched: tuple[str, ...] = ()
         # topic -> (type, offered QoS profiles, type hash), for every bag this node opens.
         self._topics: dict[str, tuple[str, list[dict[str, Any]], str]] = {}
         self._thrusters: set[str] = set()
@@ -193,9 +199,21 @@ class Recorder(Node):
         self.get_logger().info(f"{topic}: publishers appeared, their QoS is recorded")
         return True
 
+    def _matched_topics(self) -> tuple[str, ...]:
+        """The recorded topics whose subscription has matched at least one publisher."""
+        return tuple(
+            sorted(t for t, sub in self._recorded_subs.items() if sub.get_publisher_count() > 0)
+        )
+
     def _discover(self) -> None:
         for topic in self._topics:
             self._adapt(topic)
+        matched = self._matched_topics()
+        if matched != self._matched:
+            # At once, not at the next period: ``up`` activates the drivers when it sees its
+            # telemetry topics here, so that no sample is published before it is recorded.
+            self._matched = matched
+            self._publish_diagnostics()
         for topic, types in self.get_topic_names_and_types():
             if topic in self._subscribed or not types:
                 continue
@@ -229,7 +247,7 @@ class Recorder(Node):
                 if latched
                 else DurabilityPolicy.VOLATILE,
             )
-            self.create_subscription(
+            self._recorded_subs[topic] = self.create_subscription(
                 msg_class,
                 topic,
                 lambda data, topic=topic, type_name=type_name: self._on_message(
@@ -315,6 +333,7 @@ class Recorder(Node):
                 ("dropped", str(self._dropped)),
                 ("bag", "" if rec is None else str(rec.bag_dir)),
                 ("files", ",".join(str(f) for f in files)),
+                ("matched", ",".join(self._matched_topics())),
             ],
         )
 

@@ -86,7 +86,7 @@ def check_expectation(result: dict, label: str, after_s: float | None) -> tuple[
 def run(args: argparse.Namespace) -> int:
     """Diagnose ``args.trace``; print the label changes; check ``--expect``."""
     from thruster_fdd.core.artifact import CARD_FILE, default_models_dir
-    from thruster_fdd_shore.core.traces.files import read_traces
+    from thruster_fdd_shore.core.traces.files import bag_files, is_bag, read_traces
 
     # The input first: a typo answers at once, before torch (about 2.4 s) is imported.
     if not args.trace.exists():
@@ -106,16 +106,25 @@ def run(args: argparse.Namespace) -> int:
         ids = ", ".join(str(t.thruster_id) for t in traces)
         print(f"note: {args.trace} holds {len(traces)} traces ({ids}); using the first "
               "(--thruster ID)", file=sys.stderr)  # fmt: skip
+    trace = traces[0]
+    if is_bag(args.trace) or args.trace.suffix == ".mcap":
+        from thruster_fdd.core.nominal.card import read_nominal_card
+        from thruster_fdd_shore.core.traces.replay_check import live_samples
+
+        # The samples the live model used, as ``replay`` publishes them: the same windows.
+        files = bag_files(args.trace) if is_bag(args.trace) else [args.trace]
+        period_s = read_nominal_card(models / "nominal").sample_time_s
+        trace = live_samples(trace, files, period_s)
     import torch
 
     from thruster_fdd_shore.core.diagnosis.offline import diagnose_trace
 
     torch.set_num_threads(1)
-    result = diagnose_trace(traces[0], models / "nominal", models / "classifier", hop_s=args.hop)
+    result = diagnose_trace(trace, models / "nominal", models / "classifier", hop_s=args.hop)
     if not result["windows"]:
-        span = float(traces[0].t[-1] - traces[0].t[0]) if len(traces[0]) else 0.0
+        span = float(trace.t[-1] - trace.t[0]) if len(trace) else 0.0
         raise BadInputError(
-            f"{args.trace}: {len(traces[0])} sample(s) over {span:.1f} s hold no full decision "
+            f"{args.trace}: {len(trace)} sample(s) over {span:.1f} s hold no full decision "
             "window; nothing to diagnose"
         )
     if args.json is not None:

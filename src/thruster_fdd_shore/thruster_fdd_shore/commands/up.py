@@ -11,7 +11,9 @@ Processes (``process_commands``, the one place their command lines are built):
 Every node's parameters go into one parameters file in the standard ROS form
 (``/thruster/<id>/<node>: ros__parameters:``, ``node_parameters``), which the containers load
 with ``--params-file``. ``up`` then drives the drivers' lifecycle through their services:
-configure (ports opened) and activate (commands forwarded); on Ctrl-C or ``--duration`` it
+configure (ports opened), a wait until the recorder has matched every thruster's telemetry,
+residual and diagnosis publishers (so the bag starts with the first sample the live models use),
+and activate (commands forwarded); on Ctrl-C or ``--duration`` it
 deactivates them (neutral sent) and stops every child cleanly (SIGINT first). It prints a live
 table meanwhile.
 """
@@ -77,6 +79,14 @@ DRIVER_SETTINGS = (
 LIFECYCLE_TIMEOUT_S = 60.0
 """Longest wait for the drivers' lifecycle services to appear and answer, s (the vehicle
 process loads the models first)."""
+
+RECORDER_MATCH_TIMEOUT_S = 30.0
+"""Longest wait, after *configure*, for the recorder to match every thruster's telemetry,
+residual and diagnosis publishers before the drivers are activated, s."""
+
+RECORDED_TOPICS = ("esc/telemetry", "fdd/residual", "fdd/diagnosis")
+"""Per-thruster topics the recorder must have matched before the drivers publish: the bag then
+holds every sample the live models used, so ``replay`` and ``diagnose`` reproduce them."""
 
 RECORDER_BACKOFF_S = (1.0, 60.0)
 """Delay before the first restart of an exited recorder, and the longest (doubling), s."""
@@ -619,6 +629,23 @@ def run(args: argparse.Namespace) -> int:
                 for target, why in problems.items():
                     print(f"thruster-fdd up: {target}: {why}; see {run_dir}", file=sys.stderr)
                 return EXIT_FAILED
+            if transition == "configure" and not args.no_record:
+                # The telemetry publishers exist from configure on, and nothing is published
+                # before activate: wait for the recorder to match them, so the bag starts with
+                # the first sample the live models use.
+                wanted = {f"/thruster/{p.id}/{topic}" for p in plans for topic in RECORDED_TOPICS}
+                deadline = time.monotonic() + RECORDER_MATCH_TIMEOUT_S
+                matched = spin_until(
+                    executor, lambda wanted=wanted: wanted <= monitor.recorder_matched, deadline
+                )
+                if not matched:
+                    missing = ", ".join(sorted(wanted - monitor.recorder_matched))
+                    print(
+                        f"thruster-fdd up: the recorder has not matched {missing} after "
+                        f"{RECORDER_MATCH_TIMEOUT_S:g} s; the bag may miss the first samples "
+                        f"(see {run_dir}/recorder.log)",
+                        file=sys.stderr,
+                    )
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period

@@ -40,6 +40,9 @@ class Monitor(Node):
     def __init__(self, thruster_ids: list[str]) -> None:
         super().__init__("monitor")
         self.rows = {tid: _Row() for tid in thruster_ids}
+        # Topics the recorder's subscriptions have matched a publisher on (its status'
+        # ``matched``), the latest it reported.
+        self.recorder_matched: set[str] = set()
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
         sensor = qos_profile_sensor_data
         ids = thruster_ids
@@ -73,6 +76,10 @@ class Monitor(Node):
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
+            if status.name == status_name("recorder"):
+                for kv in status.values:
+                    if kv.key == "matched":
+                        self.recorder_matched = set(filter(None, kv.value.split(",")))
             for tid, row in self.rows.items():
                 if status.name == status_name("esc", tid):
                     row.health = f"{LEVELS.get(status.level[0], '?')}: {status.message}"

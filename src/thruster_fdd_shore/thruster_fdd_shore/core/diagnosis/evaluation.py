@@ -361,7 +361,8 @@ _SHORT = ("15V", "13V", "11.8V", "1 blade", "2 blades", "fouled")
 
 
 def plot_confusions(result: dict[str, Any], out_dir: Path) -> list[Path]:
-    """``confusion_per_sample.png`` (the four Table 3 rows) and ``confusion_per_window.png``."""
+    """``confusion_per_sample.png`` (the four Table 3 rows) and ``confusion_per_window.png``,
+    each naming the models it came from (``nominal_model_id``, ``classifier_model_id``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -373,7 +374,11 @@ def plot_confusions(result: dict[str, Any], out_dir: Path) -> list[Path]:
     for ax, r in zip(np.atleast_1d(axes), rows, strict=True):
         _matrix(ax, np.asarray(r["confusion"]), _SHORT, _SHORT)
         ax.set_title(f"{r['model']} on {r['inputs']}: {r['test_accuracy']:.3f}")
-    fig.suptitle("Table 3 protocol, per sample (one unit, 0.01 Hz sine, test = new recording)")
+    fig.suptitle(
+        "Table 3 protocol, per sample (one unit, 0.01 Hz sine, test = new recording)\n"
+        f"residuals of nominal model {result.get('nominal_model_id', '?')}",
+        fontsize=10,
+    )
     fig.tight_layout()
     paths.append(out_dir / "confusion_per_sample.png")
     with replaced_file(paths[-1]) as tmp:
@@ -383,7 +388,11 @@ def plot_confusions(result: dict[str, Any], out_dir: Path) -> list[Path]:
     m = np.asarray(result["per_window"]["confusion"])
     _matrix(ax, m, _SHORT, (*_SHORT, "unknown"))
     ba = result["per_window"]["overall"]["balanced_accuracy"]
-    ax.set_title(f"window MLP, unseen units, all profiles: balanced {ba:.4f}")
+    ax.set_title(
+        f"window MLP, unseen units, all profiles: balanced {ba:.4f}\n"
+        f"{result.get('classifier_model_id', '?')} on {result.get('nominal_model_id', '?')}",
+        fontsize=9,
+    )
     fig.tight_layout()
     paths.append(out_dir / "confusion_per_window.png")
     with replaced_file(paths[-1]) as tmp:

@@ -222,8 +222,12 @@ def run_table3(
 
 
 def table3_markdown(result: dict[str, Any]) -> str:
-    """Markdown of the comparison: paper vs per-sample rows vs per-window on unseen units."""
+    """Markdown of the comparison: paper vs per-sample rows vs per-window on unseen units,
+    headed by the ids of the models it came from."""
     lines = [
+        f"Models: nominal `{result.get('nominal_model_id', '?')}` (residuals of every row), "
+        f"classifier `{result.get('classifier_model_id', '?')}` (the exported window MLP).",
+        "",
         "| classifier | inputs | evaluation | 3-fold TS-CV acc. | test acc. |",
         "|---|---|---|---|---|",
         "| paper: MLP (best of six) | residuals | one T100, per sample | - | 0.780 |",

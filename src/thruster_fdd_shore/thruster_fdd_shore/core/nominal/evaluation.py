@@ -379,8 +379,10 @@ def plot_table2_predictions(
         for mode in MODES
     }
     paths = []
-    for j, (name, unit) in enumerate((("rpm", "rpm"), ("current", "A"))):
-        fig, axes = plt.subplots(len(tests), 1, figsize=(9, 2.2 * len(tests)), sharex=True)
+    for j, (name, quantity, unit) in enumerate(
+        (("rpm", "speed", "rpm"), ("current", "current", "A"))
+    ):
+        fig, axes = plt.subplots(len(tests), 1, figsize=(9, 2.2 * len(tests) + 0.6), sharex=True)
         for ax, (f, test) in zip(np.atleast_1d(axes), tests.items(), strict=True):
             t = np.arange(len(test.y)) * dt
             ax.plot(t, test.y[:, j], color="k", lw=1.0, label="measured (simulated)")
@@ -388,9 +390,10 @@ def plot_table2_predictions(
                 p = predict_sequence(nets[mode], test, mode)
                 r2 = r2_score(test.y, p)[j]
                 ax.plot(t, p[:, j], style, lw=1.0, label=f"NARX {mode} (r² {r2:.4f})")
-            ax.set_ylabel(f"{name} ({unit})")
+            ax.set_ylabel(f"{quantity} ({unit})")
             ax.set_title(f"{f:g} Hz", fontsize=9)
-            ax.legend(fontsize=7, loc="upper right")
+            # Per axes (the r² differ), outside the data: right of the plot.
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
         np.atleast_1d(axes)[-1].set_xlabel("time (s)")
         fig.tight_layout()
         path = out / f"table2_{name}.png"

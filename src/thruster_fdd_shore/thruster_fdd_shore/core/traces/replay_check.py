@@ -19,7 +19,8 @@ import numpy as np
 
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.nominal.residuals import decimate
-from thruster_fdd.core.traces.mcap_io import DECODE_ERRORS, METADATA_NAME
+from thruster_fdd.core.traces.data import Trace
+from thruster_fdd.core.traces.mcap_io import DECODE_ERRORS, METADATA_NAME, ORIGIN_KEY
 from thruster_fdd.core.traces.mcap_read import read_mcap, ros2_decoder, warn_if_damaged
 
 
@@ -39,6 +40,8 @@ class ThrusterBag:
         Diagnoses recorded live: (header stamp s, label).
     truth : tuple of (float, str)
         Ground-truth label segments (start s, class) from simulation metadata; empty if none.
+    used_residuals : bool
+        The samples are those of the recorded residuals (the live model's), not a decimation.
     """
 
     thruster_id: str
@@ -46,6 +49,7 @@ class ThrusterBag:
     raw: tuple[bytes, ...]
     recorded: tuple[tuple[float, str], ...]
     truth: tuple[tuple[float, str], ...]
+    used_residuals: bool = False
 
     def truth_at(self, t_s: float) -> str | None:
         """The ground-truth class at time ``t_s``, or None when the bag has none."""
@@ -141,6 +145,7 @@ def load_bag(path: str | Path, period_s: float) -> tuple[ThrusterBag, ...]:
                 raw=tuple(s[1] for s, k in zip(unique, keep, strict=True) if k),
                 recorded=tuple(recorded.get(tid, [])),
                 truth=_segments(path, truth.get(tid, "")),
+                used_residuals=tid in used,
             )
         )
     return tuple(bags)
@@ -180,10 +185,12 @@ class ReplayCheck:
     source : str
         ``recorded``, ``truth`` or ``none``.
     agreement : float or None
-        Fraction of replayed decisions equal to the expectation at their time: the recorded
-        decision nearest in time, within half the recorded decision spacing (same stamps when
-        the recording holds the live run from its first residual); ground truth: decisions
-        within ``settle_s`` after a label change are not counted.
+        Fraction of replayed decisions equal to the expectation, ``unknown`` included:
+        recorded — the live decision of the same window (the same header stamp, the window's
+        last sample); a replayed decision of a window the live run did not decide counts as a
+        disagreement, so a replay whose windows are shifted against the live ones fails;
+        ground truth — the class at its time, decisions within ``settle_s`` after a label
+        change and ``unknown`` ones not counted.
     passed : bool
         Sequences equal and agreement at least the threshold (True when nothing is expected).
     """
@@ -197,24 +204,14 @@ class ReplayCheck:
     passed: bool
 
 
-def _nearest_pairs(
+def _same_window_pairs(
     expected: list[tuple[float, str]], got: list[tuple[float, str]]
-) -> list[tuple[str, str]]:
-    """(recorded, replayed) labels of replayed decisions with a recorded one within half the
-    median recorded spacing."""
-    times = np.array(sorted(t for t, _ in expected))
-    if times.size == 0:
-        return []
-    labels = [label for _, label in sorted(expected)]
-    tol = 0.5 * float(np.median(np.diff(times))) if times.size > 1 else 0.5
-    pairs = []
-    for t, label in got:
-        i = int(np.searchsorted(times, t))
-        near = [j for j in (i - 1, i) if 0 <= j < times.size]
-        j = min(near, key=lambda k: abs(times[k] - t))
-        if abs(times[j] - t) <= tol:
-            pairs.append((labels[j], label))
-    return pairs
+) -> list[tuple[str | None, str]]:
+    """(recorded, replayed) labels of every replayed decision, paired by the stamp of its
+    window's last sample (a Diagnosis' header stamp); recorded None when the recording has no
+    decision of that window (the replay's windows are not the live ones)."""
+    by_stamp = {round(t, 6): label for t, label in expected}
+    return [(by_stamp.get(round(t, 6)), label) for t, label in got]
 
 
 def check_replay(
@@ -230,7 +227,7 @@ def check_replay(
     if bag.recorded:
         expected = [(t, label) for t, label in bag.recorded]
         exp_labels = collapse([label for _, label in expected if label != "unknown"])
-        pairs = _nearest_pairs(expected, got)
+        pairs = _same_window_pairs(expected, got)
         agreement = sum(1 for a, b in pairs if a == b) / len(pairs) if pairs else 0.0
         passed = sequence == exp_labels and agreement >= min_agreement
         return ReplayCheck(
@@ -250,3 +247,51 @@ def check_replay(
             bag.thruster_id, len(got), sequence, exp_labels, "truth", agreement, passed
         )
     return ReplayCheck(bag.thruster_id, len(got), sequence, None, "none", None, True)
+
+
+SAME_SAMPLE_S = 1e-5
+"""A trace time and a stamp this close (s) are the same sample (far below the ESC period)."""
+
+
+def live_samples(trace: Trace, files: list[Path], period_s: float) -> Trace:
+    """The samples of ``trace`` (read from the recording ``files``) that ``replay`` publishes:
+    those the live nominal model used (``load_bag``), so ``diagnose`` and ``replay`` decide on
+    the same windows as the live run. The trace unchanged when the recording has no residuals
+    of its thruster (a simulated recording: the decimation is then the same in both).
+
+    Parameters
+    ----------
+    trace : Trace
+        One thruster's telemetry read from ``files`` (times relative to the recording's
+        ``time_origin_ns``, 0 for a live recording).
+    files : list of Path
+        The recording's MCAP files, in order.
+    period_s : float
+        The nominal model's sample time, s.
+    """
+    stamps: set[int] = set()
+    origin_ns = 0
+    for file in files:
+        contents = read_mcap(file)
+        origin_ns = int(contents.metadata.get(METADATA_NAME, {}).get(ORIGIN_KEY, "0") or 0)
+        for bag in load_bag(file, period_s):
+            if bag.thruster_id == trace.thruster_id and bag.used_residuals:
+                stamps.update(bag.stamps_ns)
+    if not stamps:
+        return trace
+    # Nearest stamp within 10 us: the trace's float times lose the last digits of the ns.
+    wanted = np.array(sorted((ns - origin_ns) * 1e-9 for ns in stamps))
+    i = np.clip(np.searchsorted(wanted, trace.t), 1, len(wanted) - 1) if len(wanted) > 1 else 0
+    near = np.minimum(np.abs(wanted[i] - trace.t), np.abs(wanted[i - 1] - trace.t))
+    keep = near <= SAME_SAMPLE_S
+    return Trace(
+        t=trace.t[keep],
+        command=trace.command[keep],
+        voltage=trace.voltage[keep],
+        rpm=trace.rpm[keep],
+        current=trace.current[keep],
+        condition=trace.condition,
+        thruster_id=trace.thruster_id,
+        extra={k: v[keep] for k, v in trace.extra.items()},
+        labels=None if trace.labels is None else trace.labels[keep],
+    )
