@@ -213,7 +213,7 @@ class Recorder(Node):
             # At once, not at the next period: ``up`` activates the drivers when it sees its
             # telemetry topics here, so that no sample is published before it is recorded.
             self._matched = matched
-            self._publish_diagnostics()
+            self._publish_diagnostics(periodic=False)
         for topic, types in self.get_topic_names_and_types():
             if topic in self._subscribed or not types:
                 continue
@@ -302,20 +302,24 @@ class Recorder(Node):
         if self._error_published:
             self._error = ""
 
-    def _publish_diagnostics(self) -> None:
+    def _publish_diagnostics(self, periodic: bool = True) -> None:
+        """The recorder's status; ``periodic`` False for an extra one between two periods (a
+        change of the matched topics): it neither flushes nor counts as the status that
+        reported an error (a subscriber may not have matched it yet)."""
         received, since = self._window
         now = time.monotonic()
         rate = (self._received - received) / max(now - since, 1e-9)
-        self._window = (self._received, now)
         rec = self._recorder
-        if rec is not None:
-            try:
-                rec.flush_if_due()
-            except OSError as exc:
-                self._write_failed(exc)
+        if periodic:
+            self._window = (self._received, now)
+            if rec is not None:
+                try:
+                    rec.flush_if_due()
+                except OSError as exc:
+                    self._write_failed(exc)
         if self._error:
             level, message = DiagnosticStatus.ERROR, self._error
-            self._error_published = True
+            self._error_published = self._error_published or periodic
         else:
             level, message = DiagnosticStatus.OK, f"recording {len(self._subscribed)} topics"
         files = [] if rec is None else rec.files
