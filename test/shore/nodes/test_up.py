@@ -265,7 +265,7 @@ def test_per_thruster_driver_settings_reach_the_parameters_file(tmp_path: Path) 
     assert "/thruster/t0/command_player" in written
     assert "/thruster/t1/command_player" not in written
     config.write_text("thrusters:\n  - {id: t0, port: /dev/ttyS0}\n  - {id: t1, port: /dev/ttyS0}")
-    with pytest.raises(BadInputError, match="ports must be unique"):
+    with pytest.raises(BadInputError, match="same serial device"):
         plan_from_args(args)
     for bad in ("baud: -1", "baud: 9600.5", "command_timeout_s: 0", "pole_pairs: true"):
         config.write_text(f"thrusters:\n  - {{id: t0, {bad}}}\n")

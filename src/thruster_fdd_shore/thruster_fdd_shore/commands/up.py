@@ -635,9 +635,15 @@ def run(args: argparse.Namespace) -> int:
                 # the first sample the live models use.
                 wanted = {f"/thruster/{p.id}/{topic}" for p in plans for topic in RECORDED_TOPICS}
                 deadline = time.monotonic() + RECORDER_MATCH_TIMEOUT_S
-                matched = spin_until(
-                    executor, lambda wanted=wanted: wanted <= monitor.recorder_matched, deadline
-                )
+
+                def ready(
+                    wanted: set[str] = wanted, recorder: subprocess.Popen = children["recorder"]
+                ) -> bool:
+                    # A recorder that died is not waited for: the loop below restarts it.
+                    dead = recorder.poll() is not None
+                    return dead or stop.is_set() or wanted <= monitor.recorder_matched
+
+                matched = spin_until(executor, ready, deadline)
                 if not matched:
                     missing = ", ".join(sorted(wanted - monitor.recorder_matched))
                     print(
