@@ -13,6 +13,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 def test_up_runs_the_node_set_on_the_bridge_firmware(tmp_path: Path) -> None:
     cmd = ["thruster-fdd", "up", "--bridge", "firmware", "--duration", "16", "--print-period", "4"]
+    cmd += ["--keep-run-dir"]  # the test reads the emulator logs afterwards
     out = subprocess.run(
         [*cmd, "--record-dir", str(tmp_path)], capture_output=True, text=True, timeout=120
     )

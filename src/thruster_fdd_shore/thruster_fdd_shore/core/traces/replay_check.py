@@ -10,6 +10,7 @@ ground-truth labels a simulated recording carries in its metadata.
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.errors import BadInputError, PartialInputWarning
 from thruster_fdd.core.nominal.residuals import decimate
 from thruster_fdd.core.traces.data import Trace
 from thruster_fdd.core.traces.mcap_io import DECODE_ERRORS, METADATA_NAME, ORIGIN_KEY
@@ -272,9 +273,16 @@ def live_samples(trace: Trace, files: list[Path], period_s: float) -> Trace:
     stamps: set[int] = set()
     origin_ns = 0
     for file in files:
-        contents = read_mcap(file)
+        # The trace's own reading warned about damage and skipped splits already.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PartialInputWarning)
+            try:
+                contents = read_mcap(file)
+                bags = load_bag(file, period_s)
+            except BadInputError:
+                continue
         origin_ns = int(contents.metadata.get(METADATA_NAME, {}).get(ORIGIN_KEY, "0") or 0)
-        for bag in load_bag(file, period_s):
+        for bag in bags:
             if bag.thruster_id == trace.thruster_id and bag.used_residuals:
                 stamps.update(bag.stamps_ns)
     if not stamps:
