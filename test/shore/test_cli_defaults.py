@@ -1,4 +1,4 @@
-"""The command line's defaults and help (issue 50, items 6 and 8): one models folder for every
+"""The command line's defaults and help: one models folder for every
 command whatever the current folder, nothing shipped replaced without --force, help on every
 option, input checked before torch, CSV column names."""
 

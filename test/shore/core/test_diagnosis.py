@@ -130,7 +130,7 @@ def test_confusion_counts_unknown_in_last_column() -> None:
 # Training, card, load errors
 
 
-def test_card_records_what_the_issue_asks(models: Path) -> None:
+def test_card_records_classes_features_window_and_pair(models: Path) -> None:
     card = json.loads((models / "classifier" / "model_card.json").read_text())
     assert card["kind"] == "classifier"
     assert card["class_names"] == list(CLASS_NAMES)

@@ -45,7 +45,7 @@ def _published(window: SequenceWindow, seqs: list[int]) -> list[int]:
 # ----------------------------------------------------------------------------- sequence window
 
 
-def test_the_issue_replay_is_published_once() -> None:
+def test_a_replayed_frame_is_published_once() -> None:
     """Frames 0-9, then 5-9 again, then an old 3: each frame is published once, no repeat."""
     window = SequenceWindow()
     seqs = list(range(10)) + list(range(5, 10)) + [3]

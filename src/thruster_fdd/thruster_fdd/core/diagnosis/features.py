@@ -12,7 +12,7 @@ nominal model). ``window_features`` turns it into one vector of ``FEATURE_NAMES`
   on less) over all turning samples and per operating region (below / above ``HIGH_RPM``);
 - steady-state ratios: electric power per speed cubed (``V I / w^3`` is proportional to the
   propeller torque coefficient k_q, which fouling raises and broken blades lower), current per
-  rpm squared (the issue's ratio), rpm per command;
+  rpm squared, rpm per command;
 - ripple and spectrum: a broken blade adds a once-per-revolution ripple to the current and the
   speed, aliased at telemetry rates into broadband sample-to-sample noise: robust (MAD) spread of
   the first differences, absolute and relative, and the fraction of the detrended current's

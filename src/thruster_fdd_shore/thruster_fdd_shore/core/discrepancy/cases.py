@@ -254,8 +254,8 @@ regenerative braking."""
 
 
 MISMATCH_HIDDEN = tuple(n for n in PLAUSIBLE if n != "esc_lag")
-"""Effects a mismatch case may hide: the start keeps ``esc_lag`` (as in the issue's trial:
-``--start t100``, every effect but ``esc_lag`` dropped)."""
+"""Effects a mismatch case may hide: the start keeps ``esc_lag`` (a
+``--start t100`` with every effect but ``esc_lag`` dropped)."""
 
 
 MISMATCH_PAIRS = (
@@ -278,7 +278,7 @@ SUPERFLUOUS_VALUES: dict[str, tuple[str, float]] = {
 
 
 MISMATCH_DURATION_S = 600.0
-"""Default length of a mismatch case, s (the issue's trial: 600 s at 10 Hz)."""
+"""Default length of a mismatch case, s (600 s at 10 Hz)."""
 
 
 def _full_command(config: SimConfig) -> tuple[float, float, float]:
