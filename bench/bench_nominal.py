@@ -59,7 +59,7 @@ def main() -> None:
         med, p99 = percentiles_us(times[model.warmup_samples :])
         print(f"NominalModel.step ({mode}): median {med:.1f} us, p99 {p99:.1f} us")
 
-    module = model.program.module()
+    module = torch.export.load(f"{args.model}/model.pt2").module()
     nu, ny = model.card.lookbacks["input"], model.card.lookbacks["output"]
     u = torch.zeros(1, nu, 2)
     y = torch.zeros(1, ny, 2)
