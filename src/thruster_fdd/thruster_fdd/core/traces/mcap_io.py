@@ -19,7 +19,7 @@ import os
 import re
 import struct
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +27,14 @@ from mcap_ros2.writer import Writer
 
 from thruster_fdd.core.atomic import replaced_file
 from thruster_fdd.core.errors import BadInputError
+from thruster_fdd.core.labels import CLASS_NAMES
 from thruster_fdd.core.traces.data import Trace, check_units, finite_rows
 from thruster_fdd.core.traces.mcap_read import (
     McapChannel,
     McapContents,
+    McapStream,
     read_mcap,
+    read_mcap_metadata,
     ros2_decoder,
     warn_if_damaged,
 )
@@ -282,6 +285,127 @@ def read_trace_mcap(path: str | Path) -> list[Trace]:
         _trace(path, tid, cols, segments.get(tid, ""), origin_s)
         for tid, cols in sorted(columns.items())
     ]
+
+
+TelemetryRow = tuple[str, float, float, float, float, float, float]
+"""One decoded telemetry message: thruster id, t (s), command (-1..1), voltage (V), rpm, current
+(A), temperature (°C)."""
+
+
+def iter_trace_mcap(path: str | Path) -> Iterator[TelemetryRow]:
+    """Every thruster's telemetry of an MCAP file, one message at a time in file order, as
+    ``read_trace_mcap`` decodes it (same times, same values, before its finite filter, sort and
+    unit check, which need the whole trace); memory bounded by one chunk.
+
+    The time origin and labels come from the metadata records (read first, without
+    decompressing a chunk). At the end, the same ``DamagedRecordingWarning`` as
+    ``read_trace_mcap`` says what was lost, and the label metadata of the thrusters seen is
+    checked.
+
+    Raises
+    ------
+    BadInputError
+        If the file is not an MCAP recording, its origin metadata is not an integer (at the
+        first item); if it held no readable ``EscTelemetry`` or has malformed label metadata
+        (at the end).
+    """
+    path = Path(path)
+    meta = read_mcap_metadata(path).get(METADATA_NAME, {})
+    try:
+        origin_ns = int(meta.get(ORIGIN_KEY, "0"))
+    except ValueError:
+        raise BadInputError(f"{path}: {ORIGIN_KEY} metadata is not an integer") from None
+    stream = McapStream(path)
+    plans: dict[int, tuple[McapChannel | None, str | None, object]] = {}
+    counts: dict[int, int] = {}
+    seen: set[str] = set()
+    undecodable = 0
+    fields = tuple(_FIELDS.values())
+    for cid, channel, _, data in stream:
+        plan = plans.get(cid)
+        if plan is None or plan[0] is not channel:
+            plan = plans[cid] = (channel, *_telemetry_plan(channel))
+        _, tid, decode = plan
+        if tid is None:
+            continue
+        counts[cid] = counts.get(cid, 0) + 1
+        if decode is None:
+            continue
+        try:
+            msg = decode(data)  # type: ignore[operator]
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            row = (tid, (stamp_ns - origin_ns) * 1e-9, *(float(getattr(msg, f)) for f in fields))
+        except DECODE_ERRORS:
+            undecodable += 1
+            continue
+        seen.add(tid)
+        yield row  # type: ignore[misc]
+    contents = stream.contents
+    assert contents is not None
+    problems = _channel_problems(contents, counts)
+    if undecodable:
+        problems.append(f"{undecodable} telemetry message(s) do not decode")
+    warn_if_damaged(contents, tuple(problems))
+    if not seen:
+        raise BadInputError(f"{path}: no readable {TELEMETRY_TYPE} on /thruster/<id>/esc/telemetry")
+    segments = {k.removeprefix("labels."): v for k, v in meta.items() if k.startswith("labels.")}
+    for tid in sorted(seen):
+        _check_label_names(f"{path} ({tid})", segments.get(tid, ""), origin_ns * 1e-9)
+
+
+def _telemetry_plan(channel: McapChannel | None) -> tuple[str | None, object]:
+    """(thruster id, decoder) of a telemetry channel of the right kind; (id, None) of one on a
+    telemetry topic that cannot be decoded; (None, None) of any other."""
+    match = None if channel is None else _TELEMETRY_TOPIC.match(channel.topic)
+    if match is None:
+        return None, None
+    assert channel is not None
+    if not _right_kind(channel):
+        return match["id"], None
+    return match["id"], ros2_decoder(channel)
+
+
+def _right_kind(channel: McapChannel) -> bool:
+    schema = channel.schema
+    kind = None if schema is None else (schema.name, schema.encoding, channel.message_encoding)
+    return kind == (TELEMETRY_TYPE, "ros2msg", "cdr")
+
+
+def _channel_problems(contents: McapContents, counts: dict[int, int]) -> list[str]:
+    """What ``read_trace_mcap`` says of telemetry channels of another kind and of schemas that
+    do not parse, in its order, from the messages counted per channel."""
+    wrong, unparsed = [], []
+    for cid, channel in sorted(contents.channels.items()):
+        if _TELEMETRY_TOPIC.match(channel.topic) is None:
+            continue
+        n = counts.get(cid, 0)
+        if not _right_kind(channel):
+            schema = channel.schema
+            got = (
+                "no schema"
+                if schema is None
+                else f"{schema.name} in {schema.encoding} / {channel.message_encoding}"
+            )
+            wrong.append(
+                f"{channel.topic}: {got}, not {TELEMETRY_TYPE} in ros2msg / cdr; "
+                f"{n} message(s) skipped"
+            )
+        elif ros2_decoder(channel) is None:
+            unparsed.append(f"{channel.topic}: schema does not parse; {n} message(s) skipped")
+    return wrong + unparsed
+
+
+def _check_label_names(source: str, text: str, origin_s: float) -> None:
+    """BadInputError, as ``read_trace_mcap`` gives it, when label metadata is malformed or names
+    an unknown class."""
+    _labels_from_segments(source, np.zeros(0), text, origin_s)
+    names = {p.partition(":")[2] for p in text.split(";")} if text else set()
+    unknown = names - set(CLASS_NAMES)
+    if unknown:
+        raise BadInputError(
+            f"{source}: unknown condition {sorted(unknown)}; expected one of "
+            f"{', '.join(CLASS_NAMES)}"
+        )
 
 
 # Trace column -> EscTelemetry field.

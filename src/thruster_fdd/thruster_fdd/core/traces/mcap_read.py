@@ -1,12 +1,14 @@
 """One robust reader of MCAP recordings: whatever is recoverable, with the damage said.
 
 Every tool that reads a recording (``read_trace_mcap``, ``replay_check.load_bag``,
-``recording.read_recovered``) goes through :func:`read_mcap`. It walks the records itself
-rather than trusting the summary, so a file cut by ``kill -9`` (no footer, no summary) reads up
-to its last complete record; it checks every chunk's CRC and size, the data section's CRC when
-one was written and the summary's (a summary that fails is not used), skips a chunk that fails
-(its messages are counted from the message indexes behind it) and a record that does not
-parse, and stops where the records no longer fit the file (mapped, not read into memory).
+``recording.read_recovered``) goes through :func:`read_mcap`, or :class:`McapStream`, the same
+walk handing out one message at a time (memory bounded by a chunk, not by the recording). It
+walks the records itself rather than trusting the summary, so a file cut by ``kill -9`` (no
+footer, no summary) reads up to its last complete record; it checks every chunk's CRC and
+size, the data section's CRC when one was written and the summary's (a summary that fails is
+not used), skips a chunk that fails (its messages are counted from the message indexes behind
+it) and a record that does not parse, and stops where the records no longer fit the file
+(mapped, not read into memory).
 What was lost is listed in ``McapContents.problems`` and said in one
 :class:`DamagedRecordingWarning`. A file that does not start with the MCAP magic, or from which
 not one message can be read, is refused with ``BadInputError`` (exit 2, one line). No rclpy.
@@ -121,6 +123,8 @@ class McapContents:
         What was lost or could not be checked, each with its extent; empty for a sound file.
     expected_messages : int or None
         The message count of the file's statistics record, when it has one.
+    messages_read : int
+        Messages read (``len(messages)``; also when ``messages`` was streamed, not kept).
     """
 
     path: Path
@@ -130,6 +134,7 @@ class McapContents:
     complete: bool
     problems: tuple[str, ...]
     expected_messages: int | None = None
+    messages_read: int = 0
 
 
 @dataclass
@@ -149,6 +154,9 @@ class _Walk:
     last_chunk_bad: bool = False
     not_chunk: tuple[int, int] | None = None  # (offset, type) of the last record if no chunk
     expected: int | None = None
+    read: int = 0
+    footer_end: int | None = None
+    stopped: list[str] = field(default_factory=list)
 
     def add_schema(self, schema: Schema) -> None:
         # The first definition wins: the summary repeats them outside any checked chunk.
@@ -157,13 +165,15 @@ class _Walk:
     def add_channel(self, channel: Channel) -> None:
         self.raw_channels.setdefault(channel.id, channel)
 
-    def resolve_channels(self) -> None:
-        """Channels with their schemas (a schema may come after its channel in a summary)."""
+    def resolve_channels(self, orphans: int | None = None) -> None:
+        """Channels with their schemas (a schema may come after its channel in a summary);
+        ``orphans``: messages met without their channel (None: count them in ``messages``)."""
         self.channels = {
             cid: McapChannel(ch.topic, ch.message_encoding, self.schemas.get(ch.schema_id))
             for cid, ch in self.raw_channels.items()
         }
-        orphans = sum(1 for cid, _, _ in self.messages if cid not in self.channels)
+        if orphans is None:
+            orphans = sum(1 for cid, _, _ in self.messages if cid not in self.channels)
         if orphans:
             self.problems.append(f"{orphans} message(s) on channels whose definition was lost")
 
@@ -258,7 +268,9 @@ def _decompress(chunk: Chunk) -> bytes:
     raise ValueError(f"unknown compression {chunk.compression!r}")
 
 
-def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> None:
+def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> list[Message]:
+    """The messages of a sound chunk (its schemas and channels go into ``walk``); none of a
+    damaged one."""
     walk.last_chunk_bad = True
     span_ns = max(0, chunk.message_end_time - chunk.message_start_time)
     try:
@@ -268,14 +280,14 @@ def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> None:
         walk.problems.append(f"chunk at byte {offset} does not decompress ({exc})")
         walk.bad_chunks += 1
         walk.lost_span_ns += span_ns
-        return
+        return []
     if len(data) != chunk.uncompressed_size or (
         chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc
     ):
         walk.problems.append(f"chunk at byte {offset} fails its CRC")
         walk.bad_chunks += 1
         walk.lost_span_ns += span_ns
-        return
+        return []
     stopped: list[str] = []
     parsed = []
     try:
@@ -290,10 +302,15 @@ def _read_chunk(walk: _Walk, chunk: Chunk, offset: int) -> None:
         walk.problems.append(f"chunk at byte {offset} is malformed: {stopped[0]}")
         walk.bad_chunks += 1
         walk.lost_span_ns += span_ns
-        return
+        return []
     walk.last_chunk_bad = False
+    messages = []
     for opcode, record in parsed:
-        _take(walk, opcode, record)
+        if opcode == Opcode.MESSAGE:
+            messages.append(record)
+        else:
+            _take(walk, opcode, record)
+    return messages
 
 
 def _take(walk: _Walk, opcode: int, record: Any) -> None:
@@ -301,8 +318,6 @@ def _take(walk: _Walk, opcode: int, record: Any) -> None:
         walk.add_schema(record)
     elif opcode == Opcode.CHANNEL:
         walk.add_channel(record)
-    elif opcode == Opcode.MESSAGE:
-        walk.add_message(record)
 
 
 def read_mcap(path: str | Path, *, require_messages: bool = True) -> McapContents:
@@ -330,32 +345,52 @@ def read_mcap(path: str | Path, *, require_messages: bool = True) -> McapContent
         If the file cannot be read.
     """
     path = Path(path)
+    with _mapped(path) as data:
+        early = _check_start(path, data, require_messages)
+        if early is not None:
+            return early
+        walk = _Walk(path)
+        for message in _walk_messages(walk, data):
+            walk.add_message(message)
+        walk.resolve_channels()
+        return _finish(walk, data, require_messages)
+
+
+@contextlib.contextmanager
+def _mapped(path: Path) -> Iterator[bytes | mmap.mmap]:
+    """The file's bytes, mapped: a recording (256 MB by default) costs address space, not a
+    copy."""
     with path.open("rb") as f:
         size = os.fstat(f.fileno()).st_size
-        # Mapped, not read: a recording (256 MB by default) costs address space, not a copy.
         data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
     try:
-        return _read(path, data, require_messages)
+        yield data
     finally:
         if isinstance(data, mmap.mmap):
             data.close()
 
 
-def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapContents:
-    """``read_mcap`` on the file's bytes."""
-    if data[: len(MAGIC)] != MAGIC:
-        if require_messages or not MAGIC.startswith(data[: len(MAGIC)]):
-            raise BadInputError(f"{path}: not an MCAP recording ({_describe_start(data[:40])})")
-        problem = f"the file ends early ({len(data)} bytes, inside the magic): the rest is lost"
-        return McapContents(path, {}, [], {}, False, (problem,))
-    walk = _Walk(path)
+def _check_start(
+    path: Path, data: bytes | mmap.mmap, require_messages: bool
+) -> McapContents | None:
+    """Refuse a file that is not MCAP; the empty result of one cut inside the magic; else
+    None."""
+    if data[: len(MAGIC)] == MAGIC:
+        return None
+    if require_messages or not MAGIC.startswith(data[: len(MAGIC)]):
+        raise BadInputError(f"{path}: not an MCAP recording ({_describe_start(data[:40])})")
+    problem = f"the file ends early ({len(data)} bytes, inside the magic): the rest is lost"
+    return McapContents(path, {}, [], {}, False, (problem,))
+
+
+def _walk_messages(walk: _Walk, data: bytes | mmap.mmap) -> Iterator[Message]:
+    """The messages of a file that starts with the magic, one at a time in file order;
+    everything else (channels, metadata, damage) goes into ``walk``."""
     summary_damaged = _damaged_summary(data)
     if summary_damaged:
         walk.problems.append("the summary fails its CRC: its schemas, channels and counts unused")
-    stopped: list[str] = []
-    footer_end = None
     in_summary = False
-    for offset, opcode, body in _records(data, len(MAGIC), len(data), stopped):
+    for offset, opcode, body in _records(data, len(MAGIC), len(data), walk.stopped):
         if summary_damaged and in_summary and opcode in _SUMMARY_COPIES:
             continue
         try:
@@ -371,7 +406,9 @@ def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapCo
         if opcode != Opcode.MESSAGE_INDEX:
             walk.not_chunk = None if opcode == Opcode.CHUNK else (offset, opcode)
         if opcode == Opcode.CHUNK:
-            _read_chunk(walk, record, offset)
+            for message in _read_chunk(walk, record, offset):
+                walk.read += 1
+                yield message
         elif opcode == Opcode.MESSAGE_INDEX:
             if walk.not_chunk is not None:
                 # Message indexes follow only chunks: this record held one, its type byte hit
@@ -395,40 +432,166 @@ def _read(path: Path, data: bytes | mmap.mmap, require_messages: bool) -> McapCo
             if record.data_section_crc not in (0, _crc32(data, offset)):
                 walk.problems.append("the data section fails its CRC")
         elif opcode == Opcode.FOOTER:
-            footer_end = offset + _RECORD_HEADER.size + len(body)
+            walk.footer_end = offset + _RECORD_HEADER.size + len(body)
             break
+        elif opcode == Opcode.MESSAGE:
+            walk.read += 1
+            yield record
         else:
             _take(walk, opcode, record)
-    complete = footer_end is not None and data[footer_end:] == MAGIC
-    if footer_end is None:
-        end = stopped[0] if stopped else "no footer"
+
+
+def _finish(walk: _Walk, data: bytes | mmap.mmap, require_messages: bool) -> McapContents:
+    """What a finished walk (channels resolved) read, with the rest of its problems."""
+    complete = walk.footer_end is not None and data[walk.footer_end :] == MAGIC
+    if walk.footer_end is None:
+        end = walk.stopped[0] if walk.stopped else "no footer"
         walk.problems.append(f"the file ends early ({end}; {len(data)} bytes): the rest is lost")
     elif not complete:
         walk.problems.append("the closing magic after the footer is missing or damaged")
-    walk.resolve_channels()
     if walk.bad_chunks or walk.lost_in_chunks:
         span = f" spanning {walk.lost_span_ns * 1e-9:.1f} s" if walk.lost_span_ns else ""
         walk.problems.append(
             f"{walk.bad_chunks} damaged chunk(s) skipped: {walk.lost_in_chunks} message(s) "
             f"lost{span}"
         )
-    unaccounted = (walk.expected or 0) - len(walk.messages) - walk.lost_in_chunks
+    unaccounted = (walk.expected or 0) - walk.read - walk.lost_in_chunks
     if unaccounted > 0:
         # The last check: the statistics record (under the summary CRC when there is one)
         # counts messages that no damaged record explains.
         walk.problems.append(f"{unaccounted} message(s) the statistics count are missing")
-    if not walk.messages and require_messages:
+    if not walk.read and require_messages:
         summary = "; ".join(walk.problems) or "it holds no messages"
-        raise BadInputError(f"{path}: no message could be read ({summary})")
+        raise BadInputError(f"{walk.path}: no message could be read ({summary})")
     return McapContents(
-        path,
+        walk.path,
         walk.channels,
         walk.messages,
         walk.metadata,
         complete,
         tuple(walk.problems),
         walk.expected,
+        walk.read,
     )
+
+
+class McapStream:
+    """The messages of an MCAP file one at a time, as :func:`read_mcap` would read them.
+
+    Iterate once: each item is ``(channel id, channel, log time ns, data)`` in file order
+    (the order the recorder and ``write_trace_mcap`` write, i.e. log-time order), ``channel``
+    as defined before the message in the file, else by the summary when its CRC holds, else
+    None (counted as lost). What is held is one chunk's records at a time. After the iteration
+    ``contents`` holds channels, metadata and problems as ``read_mcap`` gives them, with
+    ``messages`` empty.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    require_messages : bool
+        As for ``read_mcap``.
+
+    Raises
+    ------
+    BadInputError
+        While iterating: as ``read_mcap`` (not MCAP at the first item, no message at the end).
+    """
+
+    def __init__(self, path: str | Path, *, require_messages: bool = True) -> None:
+        self.path = Path(path)
+        self.require_messages = require_messages
+        self.contents: McapContents | None = None
+
+    def __iter__(self) -> Iterator[tuple[int, McapChannel | None, int, bytes]]:
+        with _mapped(self.path) as data:
+            early = _check_start(self.path, data, self.require_messages)
+            if early is not None:
+                self.contents = early
+                return
+            walk = _Walk(self.path)
+            fallback = _summary_channels(data)
+            known: dict[int, McapChannel | None] = {}
+            defined = (0, 0)
+            orphans = 0
+            for message in _walk_messages(walk, data):
+                cid = message.channel_id
+                if defined != (len(walk.raw_channels), len(walk.schemas)):
+                    known.clear()  # a definition came in: look channels up again
+                    defined = (len(walk.raw_channels), len(walk.schemas))
+                if cid not in known:
+                    known[cid] = _channel_of(walk, fallback, cid)
+                channel = known[cid]
+                orphans += channel is None
+                yield cid, channel, message.log_time, message.data
+            walk.resolve_channels(orphans)
+            self.contents = _finish(walk, data, self.require_messages)
+
+
+def _channel_of(
+    walk: _Walk, fallback: tuple[dict[int, Schema], dict[int, Channel]], cid: int
+) -> McapChannel | None:
+    """Channel ``cid`` as defined so far in the file, else as the summary defines it."""
+    schemas, channels = fallback
+    raw = walk.raw_channels.get(cid) or channels.get(cid)
+    if raw is None:
+        return None
+    schema = walk.schemas.get(raw.schema_id) or schemas.get(raw.schema_id)
+    return McapChannel(raw.topic, raw.message_encoding, schema)
+
+
+def _summary_channels(data: bytes | mmap.mmap) -> tuple[dict[int, Schema], dict[int, Channel]]:
+    """Schemas and channels of the file's summary when it has one that its CRC vouches for (or
+    that was written without a CRC); empty otherwise."""
+    end = len(data) - len(MAGIC) - _FOOTER.size
+    if end < len(MAGIC) or data[end + _FOOTER.size :] != MAGIC or _damaged_summary(data):
+        return {}, {}
+    opcode, length, start, _, _ = _FOOTER.unpack(data[end : end + _FOOTER.size])
+    if opcode != Opcode.FOOTER or length != _FOOTER.size - 9 or not len(MAGIC) <= start < end:
+        return {}, {}
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    for _, op, body in _records(data, start, end, []):
+        if op not in (Opcode.SCHEMA, Opcode.CHANNEL):
+            continue
+        try:
+            record = _parse(op, body)
+        except _PARSE_ERRORS:
+            continue
+        if op == Opcode.SCHEMA:
+            schemas.setdefault(record.id, record)
+        else:
+            channels.setdefault(record.id, record)
+    return schemas, channels
+
+
+def read_mcap_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """The metadata records of an MCAP file as ``read_mcap`` gives them (``metadata``), read
+    without decompressing a chunk: a pass over the top-level record headers.
+
+    Raises
+    ------
+    BadInputError
+        If the file does not start with the MCAP magic.
+    OSError
+        If the file cannot be read.
+    """
+    path = Path(path)
+    metadata: dict[str, dict[str, str]] = {}
+    with _mapped(path) as data:
+        _check_start(path, data, True)
+        pos, end = len(MAGIC), len(data)
+        while end - pos >= _RECORD_HEADER.size:
+            opcode, length = _RECORD_HEADER.unpack(data[pos : pos + _RECORD_HEADER.size])
+            body = pos + _RECORD_HEADER.size
+            if length > end - body or opcode == Opcode.FOOTER:
+                break
+            if opcode == Opcode.METADATA:
+                with contextlib.suppress(*_PARSE_ERRORS):
+                    record = _parse(opcode, bytes(data[body : body + length]))
+                    metadata.setdefault(record.name, {}).update(record.metadata)
+            pos = body + length
+    return metadata
 
 
 def warn_if_damaged(contents: McapContents, extra: tuple[str, ...] = ()) -> None:
@@ -436,7 +599,7 @@ def warn_if_damaged(contents: McapContents, extra: tuple[str, ...] = ()) -> None
     problems = contents.problems + extra
     if not problems:
         return
-    read = len(contents.messages)
+    read = contents.messages_read
     of = f" of {contents.expected_messages}" if contents.expected_messages else ""
     warnings.warn(
         DamagedRecordingWarning(

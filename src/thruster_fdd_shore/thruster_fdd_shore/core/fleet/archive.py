@@ -157,7 +157,12 @@ def read_recording(path: Path) -> Contents:
         traces = read_bag(path) if is_bag(path) else read_trace_mcap(path)
     problems = tuple(dict.fromkeys(str(w.message) for w in caught))
     first = min((float(t.t[0]) for t in traces if len(t)), default=0.0)
-    origin = 0.0
-    if first < EPOCH_FLOOR_S:
-        origin = _origin_s(bag_files(path)[0] if is_bag(path) else path)
-    return Contents(traces, origin, problems)
+    return Contents(traces, origin_s(path, first), problems)
+
+
+def origin_s(path: Path, first_s: float) -> float:
+    """What to add to a recording's times (s, the first ``first_s``) for s since the epoch: 0
+    for stamps in calendar time, else the first file's ``time_origin_ns`` (s)."""
+    if first_s >= EPOCH_FLOOR_S:
+        return 0.0
+    return _origin_s(bag_files(path)[0] if is_bag(path) else path)

@@ -1,18 +1,22 @@
 """One scan task: a recording through the vehicle's own code, one summary row per thruster.
 
-Per thruster, sample by sample and from a reset state, exactly as on the vehicle:
+The recording is read once, streaming (``stream.stream_recording``); per thruster, sample by
+sample and from a reset state, exactly as on the vehicle:
 ``ResidualStream`` (nominal model) -> ``DiagnosisStream`` (classifier) for the published
 decisions, and every telemetry sample into an ``EffectivenessEstimator`` (as the health node
 does). Only running aggregates are kept (label durations, a fixed histogram of effectiveness,
-sums of squared residuals per speed band, the label changes), so what a thruster's summary holds
-is bounded by its window and the number of label changes, not by the recording's length.
+sums of squared residuals per speed band, the label changes, at most ``MAX_EVENTS``), so what a
+task holds is bounded by the pipelines' windows and the reader's reorder buffer, not by the
+recording's length.
 """
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,9 +32,9 @@ from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES, FAULT_CLASSES, UNKNOWN
 from thruster_fdd.core.nominal.residuals import ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
-from thruster_fdd.core.traces.data import Trace
 from thruster_fdd_shore.core.diagnosis.offline import check_pair
-from thruster_fdd_shore.core.fleet.archive import Recording, read_recording
+from thruster_fdd_shore.core.fleet.archive import Recording, origin_s
+from thruster_fdd_shore.core.fleet.stream import stream_recording
 
 LABELS: tuple[str, ...] = (*CLASS_NAMES, UNKNOWN)
 """Labels whose share of time a row holds (``frac_<label>``)."""
@@ -234,39 +238,57 @@ class ThrusterSummary:
         return row
 
 
-def thruster_row(trace: Trace, pair: ModelPair, config: ScanConfig) -> dict[str, Any]:
-    """Stream one thruster's trace through the vehicle's pipeline; its summary columns (times
-    on the trace's clock, s) plus the final effectiveness fit."""
-    residuals = ResidualStream(pair.nominal)
-    residuals.reset()
-    stream = DiagnosisStream(pair.classifier, hop_s=config.hop_s, hysteresis=config.hysteresis)
-    estimator = EffectivenessEstimator(pair.reference)
-    summary = ThrusterSummary(config.hop_s)
-    columns = (trace.t, trace.command, trace.voltage, trace.rpm, trace.current)
-    for t, c, v, r, i in zip(*(a.tolist() for a in columns), strict=True):
-        summary.add_sample(t)
-        estimator.push(t, c, v, r, i)
-        s = residuals.push(t, c, v, r, i)
+class ThrusterScan:
+    """One thruster's pipeline from a reset state, fed sample by sample, and its summary.
+
+    Parameters
+    ----------
+    pair : ModelPair
+        The models.
+    config : ScanConfig
+        Hop and hysteresis of the decisions.
+    """
+
+    def __init__(self, pair: ModelPair, config: ScanConfig) -> None:
+        # The nominal model holds its input history: one copy per thruster fed interleaved.
+        self.residuals = ResidualStream(copy.deepcopy(pair.nominal))
+        self.residuals.reset()
+        self.stream = DiagnosisStream(
+            pair.classifier, hop_s=config.hop_s, hysteresis=config.hysteresis
+        )
+        self.estimator = EffectivenessEstimator(pair.reference)
+        self.summary = ThrusterSummary(config.hop_s)
+
+    def push(self, t: float, c: float, v: float, r: float, i: float) -> None:
+        """One telemetry sample: s, command (-1..1), V, rpm, A (in time order)."""
+        self.summary.add_sample(t)
+        self.estimator.push(t, c, v, r, i)
+        s = self.residuals.push(t, c, v, r, i)
         if s is None:
-            continue
+            return
         if s.valid:
-            summary.add_residual(r, s.residual_rpm, s.residual_current_a)
-        d = stream.push(t, c, v, r, i, s.residual_rpm, s.residual_current_a, s.valid)
+            self.summary.add_residual(r, s.residual_rpm, s.residual_current_a)
+        d = self.stream.push(t, c, v, r, i, s.residual_rpm, s.residual_current_a, s.valid)
         if d is not None:
-            e = estimator.estimate()
-            summary.add_decision(d, e.value, e.evidence_s)
-    row = summary.row(0.0)
-    e = estimator.estimate()
-    row |= {
-        "eff_last": e.value,
-        "eff_std_last": e.std,
-        "eff_family": e.family,
-        "eff_severity": e.severity,
-        "eff_evidence_s": e.evidence_s,
-    }
-    if summary.dropped_events:
-        row["problems"] = f"{summary.dropped_events} label change(s) beyond {MAX_EVENTS} not kept"
-    return row
+            e = self.estimator.estimate()
+            self.summary.add_decision(d, e.value, e.evidence_s)
+
+    def row(self) -> dict[str, Any]:
+        """The summary columns (times on the recording's clock, s) and the final effectiveness
+        fit."""
+        row = self.summary.row(0.0)
+        e = self.estimator.estimate()
+        row |= {
+            "eff_last": e.value,
+            "eff_std_last": e.std,
+            "eff_family": e.family,
+            "eff_severity": e.severity,
+            "eff_evidence_s": e.evidence_s,
+        }
+        if self.summary.dropped_events:
+            n = self.summary.dropped_events
+            row["problems"] = f"{n} label change(s) beyond {MAX_EVENTS} not kept"
+        return row
 
 
 def scan_recording(recording: Recording, digest: str, config: ScanConfig) -> list[dict[str, Any]]:
@@ -288,17 +310,26 @@ def scan_recording(recording: Recording, digest: str, config: ScanConfig) -> lis
         "scanned_at_s": time.time(),
         **pair.ids,
     }
-    try:
-        contents = read_recording(recording.path)
-    except (BadInputError, OSError) as exc:
-        return [base | {"thruster": ERROR_THRUSTER, "error": f"{type(exc).__name__}: {exc}"}]
-    problems = "; ".join(contents.problems)
+    scans: dict[str, ThrusterScan] = {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            for tid, t, c, v, r, i in stream_recording(recording.path):
+                scan = scans.get(tid)
+                if scan is None:
+                    scan = scans[tid] = ThrusterScan(pair, config)
+                scan.push(t, c, v, r, i)
+        except (BadInputError, OSError) as exc:
+            return [base | {"thruster": ERROR_THRUSTER, "error": f"{type(exc).__name__}: {exc}"}]
+    problems = "; ".join(dict.fromkeys(str(w.message) for w in caught))
+    first = min((s.summary.t_first or 0.0 for s in scans.values()), default=0.0)
+    origin = origin_s(recording.path, first)
     rows = []
-    for trace in contents.traces:
-        row = base | {"thruster": trace.thruster_id or "t0"} | thruster_row(trace, pair, config)
+    for tid in sorted(scans):
+        row = base | {"thruster": tid} | scans[tid].row()
         for key in ("start_s", "end_s", "first_fault_s"):
             if row.get(key) is not None:
-                row[key] += contents.origin_s
+                row[key] += origin
         row["problems"] = "; ".join(p for p in (problems, row.get("problems") or "") if p)
         row["error"] = ""
         rows.append(row)
