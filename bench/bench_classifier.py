@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from results_file import Run, add_results_option
 
 from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.diagnosis.stream import DiagnosisStream
@@ -36,8 +37,10 @@ def main() -> None:
     parser.add_argument("--models", type=Path, default=Path("models"))
     parser.add_argument("--duration", type=float, default=1200.0, help="s of telemetry per run")
     parser.add_argument("--runs", type=int, default=3)
+    add_results_option(parser)
     args = parser.parse_args()
     torch.set_num_threads(1)
+    run = Run("bench_classifier")
     nominal = NominalModel.load(args.models / "nominal")
     classifier = ClassifierModel.load(args.models / "classifier")
     check_pair(nominal, classifier, args.models / "classifier")
@@ -59,15 +62,18 @@ def main() -> None:
             elapsed = time.perf_counter() - start
             (decide if d is not None else other).append(elapsed)
     med, p99 = percentiles_us(decide)
+    run.add("DiagnosisStream.push returning a decision", "us", med, p99=p99, count=len(decide))
     print(f"classifier {classifier.model_id}, window {classifier.window_s:g} s, hop 1 s")
     print(
         f"push returning a Decision: median {med:.0f} us, p99 {p99:.0f} us "
         f"({len(decide)} decisions)"
     )
     med, p99 = percentiles_us(other)
+    run.add("DiagnosisStream.push without a decision", "us", med, p99=p99, count=len(other))
     print(
         f"push without a Decision:   median {med:.1f} us, p99 {p99:.1f} us ({len(other)} samples)"
     )
+    run.write(args.results, classifier=classifier.model_id, runs=args.runs)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@ import resource
 import tempfile
 import time
 
+from results_file import Run, add_results_option
+
 from thruster_fdd_shore.core.discrepancy.cases import make_case, make_mismatch_case
 from thruster_fdd_shore.core.discrepancy.report import write_report
 from thruster_fdd_shore.core.discrepancy.search import run_workflow
@@ -32,6 +34,7 @@ def main() -> None:
     parser.add_argument(
         "--mismatch", choices=("t100", "t200"), help="base physics differ from this preset"
     )
+    add_results_option(parser)
     args = parser.parse_args()
     if args.mismatch:
         case = make_mismatch_case(
@@ -43,18 +46,23 @@ def main() -> None:
         f"base of {args.mismatch} changed: {', '.join(case.switches)}" if args.mismatch else "t100"
     )
     load = os.getloadavg()[0]
+    run = Run("bench_discrepancy")
     start = time.perf_counter()
     cpu0 = _cpu_s()
     result, data = run_workflow(case.trace, case.start, workers=args.workers, progress=False)
     with tempfile.TemporaryDirectory() as tmp:
         write_report(result, data, f"{tmp}/report")
     wall = time.perf_counter() - start
+    cpu = _cpu_s() - cpu0
     print(
         f"{len(case.trace)} samples ({args.duration:.0f} s at 10 Hz), {base}; hidden "
         f"{', '.join(args.hidden) or 'nothing'}: named {', '.join(result.added) or 'nothing'} "
-        f"in {wall:.1f} s wall, {_cpu_s() - cpu0:.1f} s CPU ({args.workers} worker(s); load "
+        f"in {wall:.1f} s wall, {cpu:.1f} s CPU ({args.workers} worker(s); load "
         f"average {load:.2f} at start, {os.getloadavg()[0]:.2f} at end; target < 120 s wall)"
     )
+    what = f"one discrepancy run, {args.duration:g} s at 10 Hz, {base}, {args.workers} workers"
+    run.add(what, "s wall", wall, cpu_s=cpu)
+    run.write(args.results, hidden=args.hidden, named=list(result.added))
 
 
 def _cpu_s() -> float:

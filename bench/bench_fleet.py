@@ -2,7 +2,7 @@
 """Fleet scan throughput: telemetry samples per second of the serial loop (one process, no Dask),
 a LocalCluster of 1 worker and of 2 workers on the same synthetic 50 Hz archive in the same run,
 the memory of each worker, and the hours a month of a 20-vehicle x 8-thruster fleet at 50 Hz
-would take on N cores. Writes bench/results/fleet.json.
+would take on N cores. Writes bench/results/<date>-bench_fleet.json.
 
     python bench/bench_fleet.py [--vehicles 4 --thrusters 2 --days 4 --duration 120]
 """
@@ -10,15 +10,15 @@ would take on N cores. Writes bench/results/fleet.json.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from datetime import UTC, datetime
 from pathlib import Path
+
+from results_file import Run, add_results_option
 
 ROOT = Path(__file__).resolve().parents[1]
 FLEET_SAMPLES_PER_MONTH = 20 * 8 * 50 * 86400 * 30
@@ -37,8 +37,9 @@ def main() -> int:
     p.add_argument("--thrusters", type=int, default=2)
     p.add_argument("--days", type=int, default=4)
     p.add_argument("--duration", type=float, default=120.0, help="recording length, s")
-    p.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "fleet.json")
+    add_results_option(p)
     args = p.parse_args()
+    started, load_start = datetime.now(UTC).isoformat(timespec="seconds"), os.getloadavg()[0]
 
     from thruster_fdd.core.artifact import default_models_dir
     from thruster_fdd_shore.core.fleet.archive import find_recordings, recording_digest
@@ -96,30 +97,26 @@ def main() -> int:
             f"{ideal[cores]:.0f} h at the 1-worker rate per core, {projection[cores]:.0f} h at "
             f"the measured 2-worker efficiency {efficiency:.2f}"
         )
-    out = {
-        "date": datetime.now(UTC).isoformat(timespec="seconds"),
-        "machine": f"{platform.node()} {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} cores (shared)",
-        "archive": {
-            "recordings": len(tasks),
-            "samples": samples,
-            "rate_hz": 50,
-            "thrusters_per_recording": args.thrusters,
-        },
-        "results": results,
-        "ratio_1_worker_vs_serial": per_worker / results["serial"]["samples_per_s"],
-        "ratio_2_vs_1_workers": results["workers_2"]["samples_per_s"] / per_worker,
-        "fleet_samples_per_month": FLEET_SAMPLES_PER_MONTH,
-        "load_average_1_5_15": os.getloadavg(),
-        "scaling_efficiency_2_workers": efficiency,
-        "projected_hours_per_month_by_cores_ideal": ideal,
-        "projected_hours_per_month_by_cores": projection,
-        "projection_note": "ideal: 1-worker rate x cores; projected: also x the measured "
-        "2-worker scaling efficiency (capped at 1), which on a shared machine is pessimistic",
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    run = Run("bench_fleet", started=started, load_start=load_start)
+    run.add("serial loop, no Dask", "samples/s", results["serial"]["samples_per_s"],
+            seconds=serial_s, rss_mb=results["serial"]["rss_mb"])  # fmt: skip
+    for n in (1, 2):
+        r = results[f"workers_{n}"]
+        run.add(f"LocalCluster, {n} worker(s)", "samples/s", r["samples_per_s"],
+                seconds=r["seconds"], rss_mb_per_worker=r["rss_mb_per_worker"])  # fmt: skip
+    run.write(
+        args.results,
+        archive={"recordings": len(tasks), "samples": samples, "rate_hz": 50,
+                 "thrusters_per_recording": args.thrusters},
+        ratio_1_worker_vs_serial=per_worker / results["serial"]["samples_per_s"],
+        ratio_2_vs_1_workers=results["workers_2"]["samples_per_s"] / per_worker,
+        fleet_samples_per_month=FLEET_SAMPLES_PER_MONTH,
+        scaling_efficiency_2_workers=efficiency,
+        projected_hours_per_month_by_cores_ideal=ideal,
+        projected_hours_per_month_by_cores=projection,
+        projection_note="ideal: 1-worker rate x cores; projected: also x the measured 2-worker "
+        "scaling efficiency (capped at 1), which on a shared machine is pessimistic",
+    )  # fmt: skip
     return 0
 
 

@@ -41,6 +41,7 @@ import time
 from typing import Any
 
 from procstat import cpu_seconds
+from results_file import Run, add_results_option
 
 RESIDUAL_HZ = 10.0
 COMMAND_HZ = 20.0
@@ -247,10 +248,12 @@ def main() -> None:
     parser.add_argument(
         "--role", choices=("vehicle", "recorder", "commands"), help=argparse.SUPPRESS
     )
+    add_results_option(parser)
     args = parser.parse_args()
     if args.role:
         _role(args.role, args.thrusters[0], args.rate, args.burst)
         return
+    run = Run("bench_floor")
     print(f"{'thrusters':>9} {'vehicle':>8} {'recorder':>9} {'sum':>6} {'taken/s':>8}  (cores)")
     for n in args.thrusters:
         runs = [
@@ -265,6 +268,10 @@ def main() -> None:
             f"{med['taken_per_s']:8.0f}  (sums of the runs: {each})",
             flush=True,
         )
+        run.add(f"bare rclpy set, {n} thrusters x {args.rate:g} Hz", "cores",
+                statistics.median(sums), vehicle=med["vehicle"], recorder=med["recorder"],
+                taken_per_s=med["taken_per_s"], runs=len(runs))  # fmt: skip
+    run.write(args.results, burst=args.burst)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from results_file import Run, add_results_option
 from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
 
 from thruster_fdd.nodes.common import NO_SUB_EVENTS, make_executor, spin_until
@@ -106,15 +107,29 @@ def run_once(
     return out
 
 
-def summary(values: list[float]) -> str:
-    """Median, p95, p99 and max of ``values`` (ms) and their count."""
+def stats(values: list[float]) -> dict[str, float]:
+    """Median, p95, p99, max and count of ``values`` (ms); empty when there are none."""
     if not values:
-        return "none"
+        return {}
     ordered = sorted(values)
     p95, p99 = (ordered[min(len(ordered) - 1, int(q * len(ordered)))] for q in (0.95, 0.99))
+    return {
+        "median": statistics.median(ordered),
+        "p95": p95,
+        "p99": p99,
+        "max": ordered[-1],
+        "count": len(ordered),
+    }
+
+
+def summary(values: list[float]) -> str:
+    """Median, p95, p99 and max of ``values`` (ms) and their count, as text."""
+    s = stats(values)
+    if not s:
+        return "none"
     return (
-        f"median {statistics.median(ordered):.2f} ms, p95 {p95:.2f} ms, p99 {p99:.2f} ms, "
-        f"max {ordered[-1]:.2f} ms ({len(ordered)})"
+        f"median {s['median']:.2f} ms, p95 {s['p95']:.2f} ms, p99 {s['p99']:.2f} ms, "
+        f"max {s['max']:.2f} ms ({s['count']})"
     )
 
 
@@ -133,7 +148,9 @@ def main() -> None:
         action="store_true",
         help="also print the telemetry and residual stages and the received latencies",
     )
+    add_results_option(parser)
     args = parser.parse_args()
+    run = Run("bench_latency")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     for n in args.thrusters:
         for _ in range(args.repeats):
@@ -146,10 +163,18 @@ def main() -> None:
                     f"{summary(out['published']['diagnosis'])}",
                     flush=True,
                 )
+                if s := stats(out["published"]["diagnosis"]):
+                    median = s.pop("median")
+                    run.add(
+                        f"telemetry received -> diagnosis published, {n} thrusters x "
+                        f"{args.rate:g} Hz ({label})", "ms", median, load=load, **s,
+                    )  # fmt: skip
                 if args.all_stages:
                     for stage in STAGES:
                         for what in ("published", "received"):
                             print(f"    -> {stage:9s} {what:9s}: {summary(out[what][stage])}")
+
+    run.write(args.results)
 
 
 if __name__ == "__main__":

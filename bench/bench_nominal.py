@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 import torch
+from results_file import Run, add_results_option
 
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd_shore.core.nominal.evaluation import ProtocolConfig, protocol_data
@@ -33,8 +34,10 @@ def main() -> None:
     parser.add_argument("--model", default="models/nominal")
     parser.add_argument("--samples", type=int, default=2000, help="training samples")
     parser.add_argument("--steps", type=int, default=20000, help="online steps timed")
+    add_results_option(parser)
     args = parser.parse_args()
     torch.set_num_threads(1)
+    run = Run("bench_nominal")
 
     cfg = replace(ProtocolConfig(), train_samples=args.samples)
     train, tests = protocol_data(cfg, 0)
@@ -43,6 +46,7 @@ def main() -> None:
         train_model(spec, [train], default_config(mode))
         train_s = time.perf_counter() - start
         print(f"training ({spec.architecture}, {mode}, {args.samples} samples): {train_s:.1f} s")
+        run.add(f"training, {mode}, {args.samples} samples, 1 thread", "s", train_s)
 
     model = NominalModel.load(args.model)
     test = tests[0.04]
@@ -58,6 +62,7 @@ def main() -> None:
             times.append(time.perf_counter() - t0)
         med, p99 = percentiles_us(times[model.warmup_samples :])
         print(f"NominalModel.step ({mode}): median {med:.1f} us, p99 {p99:.1f} us")
+        run.add(f"NominalModel.step, {mode}", "us", med, p99=p99)
 
     module = torch.export.load(f"{args.model}/model.pt2").module()
     nu, ny = model.card.lookbacks["input"], model.card.lookbacks["output"]
@@ -71,8 +76,11 @@ def main() -> None:
             times.append(time.perf_counter() - t0)
     med, p99 = percentiles_us(times[100:])
     print(f"exported program call per sample (torch): median {med:.1f} us, p99 {p99:.1f} us")
+    run.add("exported program call per sample (torch)", "us", med, p99=p99)
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak RSS: {rss_mb:.0f} MB")
+    run.add("peak RSS of the process", "MB", rss_mb)
+    run.write(args.results)
 
 
 if __name__ == "__main__":

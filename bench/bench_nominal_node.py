@@ -22,6 +22,7 @@ from pathlib import Path
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from results_file import Run, add_results_option
 from thruster_fdd_msgs.msg import EscTelemetry
 
 from thruster_fdd.core.artifact import default_models_dir
@@ -39,7 +40,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=3000)
     parser.add_argument("--rate", type=float, default=200.0, help="publishing rate, msg/s")
+    add_results_option(parser)
     args = parser.parse_args()
+    run = Run("bench_nominal_node")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     proc = subprocess.Popen(
         [
@@ -99,6 +102,11 @@ def main() -> None:
         f"p99 {statistics.median(p99s):.0f} us (median of windows; worst window "
         f"{max(p99s):.0f} us); resident memory {rss:.0f} MB"
     )
+    run.add("nominal_model node per-sample step (median of 1 s windows)", "us",
+            statistics.median(medians), p99=statistics.median(p99s), worst_p99=max(p99s),
+            windows=len(windows))  # fmt: skip
+    run.add("nominal_model node resident memory", "MB", rss)
+    run.write(args.results, rate_msg_per_s=args.rate, samples=len(trace))
 
 
 if __name__ == "__main__":

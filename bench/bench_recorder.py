@@ -27,6 +27,7 @@ import rclpy
 from mcap.reader import make_reader
 from procstat import cpu_seconds
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from results_file import Run, add_results_option
 from thruster_fdd_msgs.msg import EscTelemetry
 
 
@@ -95,7 +96,9 @@ def main() -> None:
     parser.add_argument("--topics", type=int, default=24, help="topics (8 thrusters x 3)")
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--repeats", type=int, default=3)
+    add_results_option(parser)
     args = parser.parse_args()
+    run = Run("bench_recorder")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init()
     results = [run_once(args.rate, args.topics, args.seconds) for _ in range(args.repeats)]
@@ -109,6 +112,11 @@ def main() -> None:
         f"recorder: offered {achieved:.0f} msg/s on {args.topics} topics, kept {kept:.2%} "
         f"(median of {args.repeats}), recorder CPU {cpu:.0%} of one core"
     )
+    run.add(f"messages offered on {args.topics} topics", "msg/s", achieved)
+    run.add("share of offered messages recorded", "fraction", kept,
+            min=min(r / s for s, r, _ in results))  # fmt: skip
+    run.add("recorder CPU", "cores", cpu)
+    run.write(args.results, repeats=args.repeats)
 
 
 if __name__ == "__main__":

@@ -16,12 +16,16 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from results_file import Run, add_results_option
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bags", nargs="*", type=Path, help="default: every bags/*.mcap")
     parser.add_argument("--runs", type=int, default=3, help="replays per bag")
+    add_results_option(parser)
     args = parser.parse_args()
+    run = Run("bench_replay")
     bags = args.bags or sorted(Path("bags").glob("*.mcap"))
     if not bags:
         raise SystemExit("no bags given and none in bags/")
@@ -54,6 +58,9 @@ def main() -> None:
         f"{'all bags':36s} median {statistics.median(every):5.0f}x (min {min(every):.0f}); "
         f"{failures} failed replays"
     )
+    run.add(f"replay real-time factor over {len(bags)} bags", "x", statistics.median(every),
+            min=min(every), max=max(every), runs=len(every), failed=failures)  # fmt: skip
+    run.write(args.results)
 
 
 if __name__ == "__main__":

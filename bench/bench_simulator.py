@@ -10,6 +10,8 @@ import argparse
 import statistics
 import time
 
+from results_file import Run, add_results_option
+
 from thruster_fdd_shore.core.sim.config import load_config
 from thruster_fdd_shore.core.sim.physics import simulate
 from thruster_fdd_shore.core.sim.signals import make_signal
@@ -32,11 +34,16 @@ def main() -> None:
     parser.add_argument("--preset", default="t100")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--duration", type=float, default=3600.0, help="simulated s per run")
+    add_results_option(parser)
     args = parser.parse_args()
+    run = Run("bench_simulator")
     for rate in (10.0, 100.0):
         ratio = speed(args.preset, rate, args.duration, args.repeats)
         print(f"{args.preset} at {rate:g} Hz: {ratio:.0f} simulated s per wall s (median of "
               f"{args.repeats}, {args.duration:g} s runs)")  # fmt: skip
+        run.add(f"simulated s per wall s, {args.preset} at {rate:g} Hz, mission signal", "x",
+                ratio, runs=args.repeats)  # fmt: skip
+    run.write(args.results)
 
 
 if __name__ == "__main__":

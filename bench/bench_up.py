@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -33,16 +34,17 @@ from collections import defaultdict
 from pathlib import Path
 
 from procstat import cpu_seconds
+from results_file import Run, add_results_option
 
-# Process part by what its command line runs, first match wins: (text, part, group).
+# Process part by what its command line runs, first match wins: (text, part, group). The
+# command players run in a container too: they must match before the vehicle's container.
 PARTS = (
+    ("thruster_fdd_shore.nodes.command_player", "command players", "sim"),
     ("thruster_fdd.nodes.recorder", "recorder", "vehicle"),
     ("thruster_fdd.nodes.health", "health", "vehicle"),
     ("thruster_fdd.nodes.container esc_driver", "drivers+models", "vehicle"),
-    ("thruster_fdd.nodes.container command_player", "command players", "sim"),
     ("thruster_fdd.nodes.container", "models", "vehicle"),
     ("thruster_fdd.nodes.esc_driver", "drivers", "vehicle"),
-    ("thruster_fdd_shore.nodes.command_player", "command players", "sim"),
     (" emulate ", "emulators", "sim"),
 )
 
@@ -149,15 +151,34 @@ def main() -> None:
         "--baseline", metavar="SRC", help="source tree of the layout to compare with (A/B)"
     )
     parser.add_argument("--repeats", type=int, default=1, help="A/B pairs per configuration")
+    add_results_option(parser)
     args = parser.parse_args()
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    run = Run("bench_up")
+    measured: dict[tuple[str, int, float], list[tuple[float, float, int]]] = defaultdict(list)
     for n in args.thrusters:
         for rate in args.rates:
             for _ in range(args.repeats):
                 if args.baseline:
                     totals = run_once(n, rate, args.seconds, args.warmup, args.baseline)
                     report("baseline", n, rate, totals)
-                report("this", n, rate, run_once(n, rate, args.seconds, args.warmup, None))
+                    measured["baseline", n, rate].append(_vehicle(totals))
+                totals = run_once(n, rate, args.seconds, args.warmup, None)
+                report("this", n, rate, totals)
+                measured["this", n, rate].append(_vehicle(totals))
+    for (label, n, rate), runs in measured.items():
+        run.add(
+            f"vehicle set CPU, {n} thrusters x {rate:g} Hz ({label})", "cores",
+            statistics.median(r[0] for r in runs), runs=len(runs),
+            rss_mb=statistics.median(r[1] for r in runs), processes=runs[0][2],
+        )  # fmt: skip
+    run.write(args.results, baseline=args.baseline)
+
+
+def _vehicle(totals: dict[str, tuple[float, float, float, int]]) -> tuple[float, float, int]:
+    """Cores, RSS MB and process count of the vehicle set."""
+    cores, rss, _, n = totals.get("group:vehicle", (0.0, 0.0, 0.0, 0))
+    return cores, rss, n
 
 
 if __name__ == "__main__":

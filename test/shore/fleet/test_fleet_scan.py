@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -154,6 +155,58 @@ def test_killed_worker_does_not_change_the_result(
     result = scan_archive(archive, out, config, client, on_done=kill_one)
     assert killed
     assert result.failed == ()
+    assert _comparable(as_rows(read_dataset(out))) == _comparable(as_rows(read_dataset(scanned[0])))
+
+
+def _wait_for(path: Path, seconds: float) -> dict[str, Any]:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if path.is_file() and path.stat().st_size:
+            return json.loads(path.read_text())
+        time.sleep(0.2)
+    raise AssertionError(f"{path} not written in {seconds:g} s")
+
+
+def test_scan_on_an_existing_cluster_equals_the_local_one(
+    scanned: tuple[Path, Any], archive: Path, tmp_path: Path
+):
+    """``--scheduler`` runs the same tasks on a cluster started outside the command (a separate
+    ``dask scheduler`` and ``dask worker`` process, as a Slurm or PBS job would start them)."""
+    from distributed import Client
+
+    info = tmp_path / "scheduler.json"
+    common = {"cwd": tmp_path, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    scheduler = subprocess.Popen(
+        ["dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+         "--scheduler-file", str(info)], **common,
+    )  # fmt: skip
+    worker = None
+    try:
+        address = _wait_for(info, 60)["address"]
+        worker = subprocess.Popen(
+            ["dask", "worker", "--scheduler-file", str(info), "--nthreads", "1", "--nworkers",
+             "1", "--host", "127.0.0.1", "--no-dashboard"], **common,
+        )  # fmt: skip
+        with Client(address, timeout="20s") as probe:
+            probe.wait_for_workers(1, timeout=60)
+        out = tmp_path / "dataset"
+        done = subprocess.run(
+            ["thruster-fdd", "fleet", "scan", str(archive), "--out", str(out), "--scheduler",
+             address], capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+        with Client(address, timeout="20s") as probe:
+            ran = probe.run_on_scheduler(lambda dask_scheduler: list(dask_scheduler.task_prefixes))
+        assert "fleet" in ran
+    finally:
+        for proc in (worker, scheduler):
+            if proc is not None:
+                proc.terminate()
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(timeout=10)
     assert _comparable(as_rows(read_dataset(out))) == _comparable(as_rows(read_dataset(scanned[0])))
 
 
