@@ -45,9 +45,9 @@ def main() -> None:
     classifier = ClassifierModel.load(args.models / "classifier")
     check_pair(nominal, classifier, args.models / "classifier")
     decide, other = [], []
-    for run in range(args.runs):
+    for k in range(args.runs):
         trace = run_scenario(
-            "t100", "biofouling", signal="mission", duration_s=args.duration, seed=500 + run
+            "t100", "biofouling", signal="mission", duration_s=args.duration, seed=500 + k
         )
         residuals = ResidualStream(nominal)
         residuals.reset()

@@ -188,8 +188,9 @@ def _role(role: str, thrusters: int, rate: float, burst: bool) -> None:
 
 def run_once(
     thrusters: int, rate: float, seconds: float, warmup: float, burst: bool
-) -> dict[str, float]:
-    """One run of the three roles; cores of vehicle and recorder, messages a second taken."""
+) -> dict[str, float] | None:
+    """One run of the three roles; cores of vehicle and recorder, messages a second taken
+    (None when a role had to be killed)."""
     procs = {
         role: subprocess.Popen(
             [
@@ -217,9 +218,17 @@ def run_once(
     for p in procs.values():
         p.send_signal(signal.SIGINT)
     out = {r: (last[r] - first[r]) / wall for r in ("vehicle", "recorder")}
-    text, _ = procs["recorder"].communicate(timeout=30)
-    for p in procs.values():
-        p.wait(timeout=30)
+    try:
+        text, _ = procs["recorder"].communicate(timeout=30)
+        for p in procs.values():
+            p.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        # A role that ignores Ctrl-C must not outlive the run (and load the next one).
+        for p in procs.values():
+            p.kill()
+            p.wait(timeout=10)
+        print(f"  a role did not stop within 30 s of Ctrl-C at {thrusters} thrusters: run dropped")
+        return None
     out["taken_per_s"] = float(text.split()[-1])
     return out
 
@@ -256,10 +265,13 @@ def main() -> None:
     run = Run("bench_floor")
     print(f"{'thrusters':>9} {'vehicle':>8} {'recorder':>9} {'sum':>6} {'taken/s':>8}  (cores)")
     for n in args.thrusters:
-        runs = [
+        tried = [
             run_once(n, args.rate, args.seconds, args.warmup, args.burst)
             for _ in range(args.repeats)
         ]
+        runs = [r for r in tried if r is not None]
+        if not runs:
+            continue
         med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
         sums = [r["vehicle"] + r["recorder"] for r in runs]
         each = ", ".join(f"{x:.3f}" for x in sums)

@@ -9,7 +9,7 @@ the hop to a subscriber (this one). The same is measured at the telemetry and re
 to show where the time goes. Prints median, p95 and p99 over all messages after a warm-up.
 
 With ``--baseline SRC`` every configuration also runs from another source tree of the package
-(e.g. ``git archive <commit>`` of the former layout, through ``PYTHONPATH``), interleaved with
+(e.g. ``git archive <commit>`` of an earlier version, through ``PYTHONPATH``), interleaved with
 this one (A then B, ``--repeats`` times), so both see the same machine load.
 
 Usage (after ``. scripts/bootstrap.sh``)::

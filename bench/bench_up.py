@@ -11,7 +11,7 @@ brackets) of
 - ``up`` itself (its live table).
 
 With ``--baseline SRC`` every configuration also runs from another source tree of the package
-(e.g. ``git archive <commit>`` of the former layout, run through ``PYTHONPATH``), interleaved
+(e.g. ``git archive <commit>`` of an earlier version, run through ``PYTHONPATH``), interleaved
 with this one (A then B, ``--repeats`` times), so both see the same machine load.
 
 Usage (after ``. scripts/bootstrap.sh``)::

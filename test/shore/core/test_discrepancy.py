@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
 from concurrent.futures import ProcessPoolExecutor
@@ -114,6 +116,26 @@ def _run_cli(out: Path) -> tuple:
     return case, main(argv)
 
 
+REST_SEED = 2
+"""Seed of the null case given an rpm disturbance no effect of the vocabulary produces."""
+
+
+def _run_rest(out: Path) -> tuple:
+    """The CLI on a null case whose measured rpm carries a slow oscillation unrelated to the
+    command (a structure outside the vocabulary); its stdout line."""
+    case = make_case((), REST_SEED, duration_s=DURATION_S)
+    trace = case.trace
+    wobble = 300.0 * np.sin(2.0 * math.pi * trace.t / 13.0)
+    measured = out / "measured.csv"
+    write_trace_csv(replace(trace, rpm=trace.rpm + wobble), measured)
+    argv = ["discrepancy", "--measured", str(measured), "--start", "t100", "--out",
+            str(out / "out"), "--quiet", "--workers", "1"]  # fmt: skip
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text):
+        code = main(argv)
+    return code, text.getvalue()
+
+
 def _run_superfluous() -> tuple:
     name, seed = SUPERFLUOUS_CASE
     case = make_case((), seed, duration_s=DURATION_S, absent=(name,))
@@ -139,6 +161,8 @@ def _job(job: tuple) -> tuple:
         return _run_superfluous()
     if kind == "weak":
         return _run_weak()
+    if kind == "rest":
+        return _run_rest(arg)
     return _run_cli(arg) if kind == "cli" else _run_case(arg)
 
 
@@ -146,6 +170,7 @@ def _job(job: tuple) -> tuple:
 def ci_results(tmp_path_factory) -> dict[str, tuple]:
     """All workflow runs of this file, two at a time (one process per run: the 2 cores)."""
     jobs = [("cli", tmp_path_factory.mktemp("cli")), ("superfluous", None), ("weak", None)]
+    jobs += [("rest", tmp_path_factory.mktemp("rest"))]
     jobs += [("case", key) for key in CI_CASES]
     with ProcessPoolExecutor(max_workers=2, mp_context=get_context("fork")) as pool:
         done = list(pool.map(_job, jobs))
@@ -153,7 +178,8 @@ def ci_results(tmp_path_factory) -> dict[str, tuple]:
         "cli": (jobs[0][1], *done[0]),
         "superfluous": done[1],
         "weak": done[2],
-        **dict(zip(CI_CASES, done[3:], strict=True)),
+        "rest": (jobs[3][1], *done[3]),
+        **dict(zip(CI_CASES, done[4:], strict=True)),
     }
 
 
@@ -209,7 +235,8 @@ def test_superfluous_effect_is_reported(ci_results, tmp_path) -> None:
     [test] = [t for t in result.superfluous if t.name == name]
     assert test.score_claim > 1.05 * test.without.gap.score  # the claim costs clearly
     files = write_report(result, data, tmp_path / "out")
-    assert json.loads(files["report.json"].read_text()) == json.loads(json.dumps(report))
+    written = json.loads(files["report.json"].read_text())
+    assert {k: written[k] for k in report} == json.loads(json.dumps(report))
     text = files["report.md"].read_text()
     assert f"superfluous: `{name}`" in text
 
@@ -1140,6 +1167,21 @@ def test_model_simulation_equals_simulator() -> None:
     np.testing.assert_allclose(sim["current"], truth.current, atol=1e-9)
 
 
+def test_a_rest_outside_the_vocabulary_is_reported(ci_results) -> None:
+    """A difference no effect of the vocabulary makes (an rpm oscillation unrelated to the
+    command) leaves a structured rest: report.json says so with where it lies, and so does the
+    one-line summary, whatever the search named."""
+    tmp, code, stdout = ci_results["rest"]
+    assert code == 0
+    rest = json.loads((tmp / "out" / "report.json").read_text())["rest"]
+    assert rest["structured"] is True
+    assert rest["score"] > rest["threshold"]
+    assert {w["signal"] for w in rest["where"]} == {"rpm", "current"}
+    rpm = [w for w in rest["where"] if w["signal"] == "rpm"]
+    assert all(0.0 <= w["error_share"] <= 1.0 for w in rpm)
+    assert "structured rest is left" in stdout
+
+
 def test_cli_end_to_end(ci_results) -> None:
     """Also the CI's hidden-``deadband`` case: named, within 20 %, gap at least halved."""
     tmp, case, code = ci_results["cli"]
@@ -1147,7 +1189,9 @@ def test_cli_end_to_end(ci_results) -> None:
     assert code == 0
     report = json.loads((out / "report.json").read_text())
     keys = {"verdict", "missing_effects", "superfluous_effects", "gap_before", "gap_after"}
+    keys |= {"base_changes", "replaced", "at_bound", "rest"}
     assert set(report) == keys
+    assert set(report["rest"]) == {"structured", "score", "threshold", "cues", "where"}
     assert report["superfluous_effects"] == []
     keys = {"rpm_rmse", "current_rmse", "rpm_r2", "current_r2"}
     assert set(report["gap_before"]) == keys == set(report["gap_after"])

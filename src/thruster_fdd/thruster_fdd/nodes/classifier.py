@@ -173,7 +173,7 @@ class ClassifierNode(Node):
 
         Replaces the ``fdd/residual`` subscription by intra-process delivery (the container
         does this when it hosts both stages of a thruster): the hop from residual to decision
-        no longer waits for DDS and the executor (``bench/bench_latency.py``).
+        does not wait for DDS and the executor (``bench/bench_latency.py``).
         """
         if self._sub is not None:
             self.destroy_subscription(self._sub)

@@ -51,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the workflow and write the report."""
     from thruster_fdd_shore.core.discrepancy.report import check_out_dir, write_report
-    from thruster_fdd_shore.core.discrepancy.search import run_workflow
+    from thruster_fdd_shore.core.discrepancy.search import STRUCTURED, run_workflow
     from thruster_fdd_shore.core.sim.config import load_config
     from thruster_fdd_shore.core.traces.files import read_traces
 
@@ -76,5 +76,10 @@ def run(args: argparse.Namespace) -> int:
     extra = ", ".join(m["name"] for m in result.report()["superfluous_effects"]) or "none"
     undecided = [f"{n} as good as {rnd.chosen}" for rnd in result.rounds for n, *_ in rnd.rivals]
     also = f"; undecided: {'; '.join(undecided)}" if undecided else ""
+    if result.base_changes:
+        also += f"; base changed: {'; '.join(result.base_changes)}"
+    score = result.final.gap.score
+    if score > STRUCTURED:
+        also += f"; a structured rest is left (held-out score {score:.1f} > {STRUCTURED:g})"
     print(f"{result.verdict}: missing {named}; superfluous {extra}{also}; report in {args.out}")
     return EXIT_OK

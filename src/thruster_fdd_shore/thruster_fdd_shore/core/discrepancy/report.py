@@ -8,7 +8,6 @@ else, before the workflow runs.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -411,6 +410,53 @@ def markdown(result: Result, data: Measured, sims: dict[str, dict], plots: list[
     return "\n".join(lines)
 
 
+REST_REGIONS = 2
+"""Regions per signal listed in report.json's ``rest.where`` (the largest error shares)."""
+
+
+def rest(result: Result, data: Measured, sim: dict[str, np.ndarray]) -> dict:
+    """What the final model leaves unexplained, for report.json's ``rest``.
+
+    ``structured``: the held-out score (mean squared residual in noise-variance units) is above
+    ``STRUCTURED``, so the residual is more than noise and the named effects do not account for
+    the whole difference; ``cues``: the plain-language reading of the residual's signatures
+    (``describe``); ``where``: the operating regions holding most of each signal's squared
+    held-out residual.
+    """
+    where = []
+    for signal in ("rpm", "current"):
+        rows = [r for r in regions(sim, data, data.held) if r.signal == signal]
+        where += [
+            {
+                "signal": r.signal,
+                "region": r.region,
+                "error_share": r.error_share,
+                "sample_share": r.sample_share,
+            }
+            for r in rows[:REST_REGIONS]
+        ]
+    score = result.final.gap.score
+    return {
+        "structured": bool(score > STRUCTURED),
+        "score": score,
+        "threshold": STRUCTURED,
+        "cues": describe(signatures(sim, data)),
+        "where": where,
+    }
+
+
+def report_json(result: Result, data: Measured, sims: dict[str, dict]) -> dict:
+    """The report.json mapping (docs/contracts.md): ``Result.report()`` plus the base changes
+    the search adopted, the base parameters left on their bound, and the ``rest``."""
+    return {
+        **result.report(),
+        "base_changes": list(result.base_changes),
+        "replaced": [{"effect": name, "by": rival} for name, rival in result.replaced],
+        "at_bound": at_bound(result),
+        "rest": rest(result, data, sims["after"]),
+    }
+
+
 def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, Path]:
     """Write report.json, model.yaml, report.md, details.json and PNG plots into ``out``.
 
@@ -485,7 +531,10 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
     }
     with replaced_dir(out) as stage:
         plots = _plots(result, data, sims, stage)
-        write_text(stage / "report.json", json.dumps(result.report(), indent=2) + "\n")
+        write_text(
+            stage / "report.json",
+            json_text(report_json(result, data, sims), nonfinite=lambda _x: None, indent=2),
+        )
         dump_config(result.final.config, stage / "model.yaml")
         write_text(stage / "report.md", markdown(result, data, sims, plots))
         write_text(stage / "details.json", json_text(details, nonfinite=lambda _x: None, indent=2))
