@@ -621,8 +621,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"ports, parameters and logs: {run_dir}   (ROS_DOMAIN_ID={domain})")
         stages = [f"{st.node} ({models / st.folder})" for st in exported_stages(models)]
         print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
-        if not args.no_record:
-            print(f"recording every topic to the bag {args.record_dir.resolve() / prefix}")
         for transition in ("configure", "activate"):
             problems = change_states(monitor, executor, drivers, transition, LIFECYCLE_TIMEOUT_S)
             if problems:
@@ -644,6 +642,12 @@ def run(args: argparse.Namespace) -> int:
                     return dead or stop.is_set() or wanted <= monitor.recorder_matched
 
                 matched = spin_until(executor, ready, deadline)
+                # The folder the recorder made: <prefix>, or <prefix>_2... when that was taken.
+                bag = (
+                    monitor.recorder_bag
+                    or f"{args.record_dir.resolve() / prefix} (not yet confirmed by the recorder)"
+                )
+                print(f"recording every topic to the bag {bag}")
                 if not matched:
                     missing = ", ".join(sorted(wanted - monitor.recorder_matched))
                     print(
