@@ -271,3 +271,54 @@ def test_per_thruster_driver_settings_reach_the_parameters_file(tmp_path: Path) 
         config.write_text(f"thrusters:\n  - {{id: t0, {bad}}}\n")
         with pytest.raises(BadInputError, match=bad.split(":")[0]):
             plan_from_args(args)
+
+
+def _vehicle_of(proc: subprocess.Popen[str], timeout_s: float) -> int:
+    """The pid of ``up``'s vehicle process, waited for up to ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        vehicle = _child_running(proc.pid, "thruster_fdd.nodes.container esc_driver")
+        if vehicle is not None:
+            return vehicle
+        time.sleep(0.05)
+    raise AssertionError("up started no vehicle process")
+
+
+@pytest.mark.parametrize(
+    ("vehicle_signal", "code", "said"),
+    [
+        (signal.SIGSTOP, 0, "stopped before the drivers were active"),
+        (signal.SIGKILL, 1, "vehicle exited before the drivers were active"),
+    ],
+    ids=["ctrl-c-while-the-vehicle-hangs", "the-vehicle-dies"],
+)
+def test_up_stops_waiting_for_the_drivers_at_once(
+    tmp_path: Path, vehicle_signal: int, code: int, said: str
+) -> None:
+    """While ``up`` waits for the drivers' lifecycle services (up to 60 s), a Ctrl-C or the
+    vehicle process' death ends the wait at once: ``up`` is gone within the 5 s it gives its
+    children to stop, not after the lifecycle timeout."""
+    proc = subprocess.Popen(
+        ["thruster-fdd", "up", "--duration", "120", "--no-record"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    vehicle = None
+    try:
+        vehicle = _vehicle_of(proc, 30.0)
+        os.kill(vehicle, vehicle_signal)  # before it loaded its models and made its services
+        time.sleep(1.0)
+        start = time.monotonic()
+        if vehicle_signal == signal.SIGSTOP:
+            proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        elapsed = time.monotonic() - start
+    finally:
+        proc.kill()
+        if vehicle is not None and Path(f"/proc/{vehicle}").exists():
+            os.kill(vehicle, signal.SIGKILL)
+    assert proc.returncode == code, out
+    assert said in out, out
+    assert elapsed < 12.0, f"up took {elapsed:.1f} s to stop"
+    assert "running for" not in out

@@ -564,7 +564,10 @@ def _start(cmd: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen[b
 
 
 def run(args: argparse.Namespace) -> int:
-    """Start the node set, print the live table, stop everything on Ctrl-C or --duration."""
+    """Start the node set, print the live table, stop everything on Ctrl-C or --duration.
+
+    Every wait ends at once on Ctrl-C or when a child exits.
+    """
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -580,31 +583,44 @@ def run(args: argparse.Namespace) -> int:
         # Once here rather than in every emulator at once.
         ensure_built("hott")
     models = (args.models or default_models_dir()).resolve()
-    _check_inputs(args, plans, models)
-    reference = health_reference(models, plans[0].preset)
-    run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
-    params_file = run_dir / "params.yaml"
-    write_parameters(node_parameters(plans, rate, run_dir, models), params_file)
     env = child_env()
     try:
         env[EXECUTOR_ENV] = args.executor or executor_kind()
     except ValueError as exc:
         raise BadInputError(str(exc)) from None
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    stop_with_parent()
-
+    domain = os.environ.get("ROS_DOMAIN_ID", "0")
     children: dict[str, subprocess.Popen[bytes]] = {}
     drivers = [f"/thruster/{p.id}/esc_driver" for p in plans]
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     monitor = Monitor([p.id for p in plans])
-    executor = make_executor(env[EXECUTOR_ENV])
-    executor.add_node(monitor)
-    prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
-    recorder_restarts = 0
+    executor: Any = None  # made after the input checks
+    stop = threading.Event()
+    run_dir: Path | None = None
+    activating = False  # from the first activate request on, drivers may be active
     clean = False  # the run folder is removed only after a clean run
+
+    def interrupted() -> str | None:
+        """Why the waiting must end now: a stop request or a dead child."""
+        if stop.is_set():
+            return "stopped"
+        dead = sorted(n for n, p in children.items() if n != "recorder" and p.poll() is not None)
+        if dead:
+            return f"{', '.join(dead)} exited"
+        return None
+
     try:
+        _check_inputs(args, plans, models)
+        reference = health_reference(models, plans[0].preset)
+        executor = make_executor(env[EXECUTOR_ENV])
+        executor.add_node(monitor)
+        run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
+        params_file = run_dir / "params.yaml"
+        write_parameters(node_parameters(plans, rate, run_dir, models), params_file)
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, lambda *_: stop.set())
+        stop_with_parent()
+        prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
+        recorder_restarts = 0
         # The recorder starts first, so it is listening when the first telemetry comes.
         if not args.no_record:
             children["recorder"] = _start(
@@ -617,12 +633,18 @@ def run(args: argparse.Namespace) -> int:
             f"{p.id}: {'serial ' + p.port if p.port else 'simulated ' + p.preset}" for p in plans
         )
         print(f"thruster-fdd up: {len(plans)} thruster(s) at {rate:g} Hz ({kinds})")
-        domain = os.environ.get("ROS_DOMAIN_ID", 0)
         print(f"ports, parameters and logs: {run_dir}   (ROS_DOMAIN_ID={domain})")
         stages = [f"{st.node} ({models / st.folder})" for st in exported_stages(models)]
         print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
+        cut_short: str | None = None
         for transition in ("configure", "activate"):
-            problems = change_states(monitor, executor, drivers, transition, LIFECYCLE_TIMEOUT_S)
+            activating = activating or transition == "activate"
+            problems = change_states(
+                monitor, executor, drivers, transition, LIFECYCLE_TIMEOUT_S, interrupted
+            )
+            cut_short = interrupted()
+            if cut_short is not None:
+                break
             if problems:
                 for target, why in problems.items():
                     print(f"thruster-fdd up: {target}: {why}; see {run_dir}", file=sys.stderr)
@@ -639,13 +661,15 @@ def run(args: argparse.Namespace) -> int:
                 ) -> bool:
                     # A recorder that died is not waited for: the loop below restarts it.
                     dead = recorder.poll() is not None
-                    return dead or stop.is_set() or wanted <= monitor.recorder_matched
+                    return dead or interrupted() is not None or wanted <= monitor.recorder_matched
 
                 matched = spin_until(executor, ready, deadline)
+                cut_short = interrupted()
+                if cut_short is not None:
+                    break
                 # The folder the recorder made: <prefix>, or <prefix>_2... when that was taken.
-                bag = (
-                    monitor.recorder_bag
-                    or f"{args.record_dir.resolve() / prefix} (not yet confirmed by the recorder)"
+                bag = monitor.recorder_bag or (
+                    f"{args.record_dir.resolve() / prefix} (not yet confirmed by the recorder)"
                 )
                 print(f"recording every topic to the bag {bag}")
                 if not matched:
@@ -656,6 +680,12 @@ def run(args: argparse.Namespace) -> int:
                         f"(see {run_dir}/recorder.log)",
                         file=sys.stderr,
                     )
+        if cut_short is not None:
+            # A stop request ends the run as cleanly as after the table; a dead child is a
+            # failure (the main loop's rule).
+            clean = stop.is_set()
+            print(f"thruster-fdd up: {cut_short} before the drivers were active", file=sys.stderr)
+            return EXIT_OK if clean else EXIT_FAILED
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period
@@ -697,14 +727,23 @@ def run(args: argparse.Namespace) -> int:
         clean = True
         return EXIT_OK
     finally:
-        if children.get("vehicle") is not None and children["vehicle"].poll() is None:
+        vehicle = children.get("vehicle")
+        if activating and vehicle is not None and vehicle.poll() is None:
             # Neutral to every bridge before the processes stop (they send it again on exit).
-            change_states(monitor, executor, drivers, "deactivate", 5.0)
+            change_states(
+                monitor,
+                executor,
+                drivers,
+                "deactivate",
+                5.0,
+                lambda: None if vehicle.poll() is None else "the vehicle process exited",
+            )
         stop_children(children, timeout_s=5.0)
-        executor.shutdown()
+        if executor is not None:
+            executor.shutdown()
         monitor.destroy_node()
         rclpy.try_shutdown()
-        if clean and not getattr(args, "keep_run_dir", False):
+        if run_dir is not None and clean and not getattr(args, "keep_run_dir", False):
             shutil.rmtree(run_dir, ignore_errors=True)
-        else:
+        elif run_dir is not None:
             print(f"thruster-fdd up: ports, parameters and logs kept in {run_dir}", file=sys.stderr)
