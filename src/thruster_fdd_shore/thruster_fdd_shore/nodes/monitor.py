@@ -35,10 +35,10 @@ class _Row:
 
 
 class Monitor(Node):
-    """Collects what ``thruster_ids`` publish (see module docstring)."""
+    """Collects what ``thruster_ids`` publish (see module docstring); the node is ``name``."""
 
-    def __init__(self, thruster_ids: list[str]) -> None:
-        super().__init__("monitor")
+    def __init__(self, thruster_ids: list[str], name: str) -> None:
+        super().__init__(name)
         self.rows = {tid: _Row() for tid in thruster_ids}
         # Topics the recorder's subscriptions have matched a publisher on (its status'
         # ``matched``), the latest it reported.
