@@ -22,6 +22,7 @@ only (a change is refused).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -84,6 +85,18 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 )
 
 
+def stream_options(value: Callable[[str], Any]) -> dict[str, Any]:
+    """The ``DiagnosisStream`` options from the node's parameters (``value``: a parameter's
+    value by name), as the node makes its stream; ``up`` checks a model with the defaults."""
+    threshold = float(value("unknown_threshold"))
+    return {
+        "hop_s": float(value("hop_s")),
+        "hysteresis": int(value("hysteresis")),
+        "unknown_threshold": threshold if threshold >= 0 else None,
+        "false_alarms_per_hour": float(value("false_alarms_per_hour")),
+    }
+
+
 class ClassifierNode(Node):
     """Publishes the diagnosis of one thruster (see module docstring)."""
 
@@ -96,13 +109,7 @@ class ClassifierNode(Node):
         p = self.get_parameter
         self._id = p("thruster_id").value
         model_dir = p("model_dir").value or str(default_models_dir() / "classifier")
-        threshold = float(p("unknown_threshold").value)
-        self._stream_options: dict[str, Any] = {
-            "hop_s": float(p("hop_s").value),
-            "hysteresis": int(p("hysteresis").value),
-            "unknown_threshold": threshold if threshold >= 0 else None,
-            "false_alarms_per_hour": float(p("false_alarms_per_hour").value),
-        }
+        self._stream_options = stream_options(lambda name: p(name).value)
         self._activate(ClassifierModel.load(model_dir), model_dir)
         self._staged: tuple[ClassifierModel, str] | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
