@@ -15,7 +15,9 @@ restart; one that fails the checks is refused (the parameter change fails with t
 the old one keeps running. A classifier made for the nominal model whose residuals arrive now
 runs at once; one made for another nominal model is staged and takes over at the first residual
 of that model, so ``thruster-fdd reload`` changes the pair atomically: each residual is always
-diagnosed by the classifier made for its nominal model. The other parameters are read at start
+diagnosed by the classifier made for its nominal model. While a model is staged, another
+``model_dir`` is refused (one reload at a time) but the staged one again, or the running one,
+which cancels the stage. The other parameters are read at start
 only (a change is refused).
 """
 
@@ -155,6 +157,17 @@ class ClassifierNode(Node):
             if param.name != "model_dir":
                 continue
             model_dir = param.value or str(default_models_dir() / "classifier")
+            if self._staged is not None and model_dir not in (self._staged[1], self._model_dir):
+                # One reload at a time: replacing a staged model would break the pair whose
+                # nominal model is being loaded now.
+                staged = self._staged[0]
+                reason = (
+                    f"a reload is in progress: {staged.model_id} is staged for the first "
+                    f"residual of nominal model {staged.nominal_model_id}; set model_dir back "
+                    f"to {self._model_dir} to cancel it"
+                )
+                self.get_logger().warning(f"refused {model_dir}: {reason}")
+                return SetParametersResult(successful=False, reason=reason)
             try:
                 model = ClassifierModel.load(model_dir)
             except ValueError as exc:
