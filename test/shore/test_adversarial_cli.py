@@ -102,6 +102,12 @@ def _infinite_temperature(d: Path) -> None:
     (d / "classifier" / CARD_FILE).write_text(json.dumps(card))  # writes Infinity
 
 
+def _deep_window(d: Path) -> None:
+    card = json.loads((d / "classifier" / CARD_FILE).read_text())
+    card["lookbacks"]["window_samples"] = 10**10
+    (d / "classifier" / CARD_FILE).write_text(json.dumps(card))
+
+
 def _appended(name: str) -> Callable[[Path], None]:
     def change(models: Path) -> None:
         with (models / "nominal" / name).open("ab") as f:
@@ -159,6 +165,8 @@ BAD_INPUT: list[tuple[str, str]] = [
     ("up --preset {w}/bomb.yaml", "anchors"),
     ("up --record-dir {w}/afile", "--record-dir"),
     ("up --models {w}/weights", "SHA-256"),
+    ("up --models {w}/tiny_temperature", "temperature 5e-324"),
+    ("up --models {w}/deep_window", "window_samples"),
     ("train nominal --data {w}/ok.csv --out {w}/afile", "exists and is a file"),
     ("train nominal --data {w}/ok.csv --out {w}/afile/sub", "is a file, not a folder"),
     ("train nominal --data {w} --out {w}", "also a --data folder"),
@@ -200,6 +208,7 @@ BAD_INPUT: list[tuple[str, str]] = [
     ("diagnose {w}/one.csv", "no full decision window"),
     ("diagnose {w}/ok.csv --models {w}/infinite", "'temperature' is inf"),
     ("diagnose {w}/ok.csv --models {w}/program", "model.pt2: SHA-256"),
+    ("replay {w}/ok.mcap --models {w}/tiny_temperature", "temperature 5e-324"),
 ]
 
 
@@ -208,6 +217,9 @@ def variants(work: Path) -> Path:
     _models(work, "weights", _appended("weights.npz"))
     _models(work, "program", _appended("model.pt2"))
     _models(work, "infinite", _infinite_temperature)
+    # Cards whose digests hold (the card lists the other files') but that the node refuses.
+    _models(work, "tiny_temperature", lambda d: _set_card(d / "classifier", temperature=5e-324))
+    _models(work, "deep_window", _deep_window)
     return work
 
 

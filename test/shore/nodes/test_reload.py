@@ -269,3 +269,72 @@ def test_reload_switches_the_pair_together(rig: Rig, tmp_path: Path) -> None:
     n_diag = len(rig.diagnosis_ids)
     rig.feed(25.0)
     assert set(rig.diagnosis_ids[n_diag:]) == {classifier_id}
+
+
+def _get_model_dir(rig: Rig, node: str) -> str:
+    from rclpy.parameter_client import AsyncParameterClient
+
+    client = AsyncParameterClient(rig.probe.node, f"{NS}/{node}")
+    assert client.wait_for_services(timeout_sec=20.0)
+    future = client.get_parameters(["model_dir"])
+    assert rig.probe.spin_until(future.done, 20.0)
+    return future.result().values[0].string_value
+
+
+@pytest.mark.parametrize("meanwhile", ["another reload", "set back"])
+def test_a_reload_waiting_for_its_staged_classifier_answers_true(
+    rig: Rig, tmp_path: Path, meanwhile: str
+) -> None:
+    """With telemetry idle, a reload stages its classifier, loads its nominal model and waits.
+    A second reload meanwhile is refused (one at a time), so the first one's "staged" holds;
+    a classifier set back meanwhile makes the first one say it does not stage its pair."""
+    nominal_dir = _get_model_dir(rig, "nominal_model")
+    rig.probe.spin(1.5)
+    classifier_dir = rig.classifier_status()["model_dir"]
+    assert rig.classifier_status()["staged_model_id"] == ""
+    _, classifier_a = retrained_pair(tmp_path / "a", "eeeeeeeeeeee")
+    retrained_pair(tmp_path / "b", "ffffffffffff")
+    first = subprocess.Popen(
+        [*RELOAD[:-1], "8", "--models", str(tmp_path / "a")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 30.0
+        loaded = str((tmp_path / "a" / "nominal").resolve())
+        while _get_model_dir(rig, "nominal_model") != loaded and time.monotonic() < deadline:
+            rig.probe.spin(0.1)
+        assert _get_model_dir(rig, "nominal_model") == loaded, "the first reload never got there"
+        if meanwhile == "another reload":
+            second = subprocess.run(
+                [*RELOAD[:-1], "5", "--models", str(tmp_path / "b")],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            assert second.returncode == 1, second.stdout + second.stderr
+            assert "a reload is in progress" in second.stderr
+        else:
+            assert _set_model_dir(rig, "classifier", Path(classifier_dir))[0]
+        stdout, stderr = first.communicate(timeout=60)
+    finally:
+        first.kill()
+    rig.probe.spin(1.5)
+    staged = rig.classifier_status()["staged_model_id"]
+    if meanwhile == "another reload":
+        assert first.returncode == 0, stderr
+        assert f"classifier {classifier_a} staged" in stdout
+        assert staged == classifier_a, "the first reload said staged: the node must agree"
+    else:
+        assert first.returncode == 1, stdout
+        assert f"does not stage {classifier_a}" in stderr
+        assert staged == ""
+    # Back to the pair of the other tests: cancel the stage, then the nominal model, then the
+    # classifier made for it.
+    for node, folder in (
+        ("classifier", classifier_dir),
+        ("nominal_model", nominal_dir),
+        ("classifier", classifier_dir),
+    ):
+        assert _set_model_dir(rig, node, Path(folder))[0]

@@ -271,3 +271,122 @@ def test_per_thruster_driver_settings_reach_the_parameters_file(tmp_path: Path) 
         config.write_text(f"thrusters:\n  - {{id: t0, {bad}}}\n")
         with pytest.raises(BadInputError, match=bad.split(":")[0]):
             plan_from_args(args)
+
+
+def _vehicle_of(proc: subprocess.Popen[str], timeout_s: float) -> int:
+    """The pid of ``up``'s vehicle process, waited for up to ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        vehicle = _child_running(proc.pid, "thruster_fdd.nodes.container esc_driver")
+        if vehicle is not None:
+            return vehicle
+        time.sleep(0.05)
+    raise AssertionError("up started no vehicle process")
+
+
+@pytest.mark.parametrize(
+    ("vehicle_signal", "code", "said"),
+    [
+        (signal.SIGSTOP, 0, "stopped before the drivers were active"),
+        (signal.SIGKILL, 1, "vehicle exited before the drivers were active"),
+    ],
+    ids=["ctrl-c-while-the-vehicle-hangs", "the-vehicle-dies"],
+)
+def test_up_stops_waiting_for_the_drivers_at_once(
+    tmp_path: Path, vehicle_signal: int, code: int, said: str
+) -> None:
+    """While ``up`` waits for the drivers' lifecycle services (up to 60 s), a Ctrl-C or the
+    vehicle process' death ends the wait at once: ``up`` is gone within the 5 s it gives its
+    children to stop, not after the lifecycle timeout."""
+    proc = subprocess.Popen(
+        ["thruster-fdd", "up", "--duration", "120", "--no-record"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    vehicle = None
+    try:
+        vehicle = _vehicle_of(proc, 30.0)
+        os.kill(vehicle, vehicle_signal)  # before it loaded its models and made its services
+        time.sleep(1.0)
+        start = time.monotonic()
+        if vehicle_signal == signal.SIGSTOP:
+            proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        elapsed = time.monotonic() - start
+    finally:
+        proc.kill()
+        if vehicle is not None and Path(f"/proc/{vehicle}").exists():
+            os.kill(vehicle, signal.SIGKILL)
+    assert proc.returncode == code, out
+    assert said in out, out
+    assert elapsed < 12.0, f"up took {elapsed:.1f} s to stop"
+    assert "running for" not in out
+
+
+def test_a_second_up_on_the_domain_refuses_and_leaves_the_first_alone(tmp_path: Path) -> None:
+    from probe import Probe
+
+    from thruster_fdd_shore.nodes.lifecycle_client import get_state
+
+    first = subprocess.Popen(
+        ["thruster-fdd", "up", "--duration", "60", "--print-period", "5", "--record-dir",
+         str(tmp_path / "first")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )  # fmt: skip
+    try:
+        with Probe("second_up_probe") as probe:
+            deadline = time.monotonic() + 90.0
+            state = None
+            while state != "active" and time.monotonic() < deadline:
+                state = get_state(probe.node, probe.executor, "/thruster/t0/esc_driver", 5.0)
+            assert state == "active", "the first up never activated its driver"
+            second = subprocess.run(
+                ["thruster-fdd", "up", "--duration", "5", "--record-dir", str(tmp_path / "second")],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            assert second.returncode == 2, second.stdout + second.stderr
+            assert len(second.stderr.strip().splitlines()) == 1, second.stderr
+            assert "already has /" in second.stderr  # the names first discovered
+            assert not (tmp_path / "second").exists(), "the second up started its recorder"
+            probe.spin(2.0)
+            state = get_state(probe.node, probe.executor, "/thruster/t0/esc_driver", 10.0)
+            assert state == "active", "the second up changed the first one's driver"
+        first.send_signal(signal.SIGINT)
+        out, _ = first.communicate(timeout=60)
+    finally:
+        first.kill()
+    assert first.returncode == 0, out
+    assert "OK: telemetry" in out.split("final:")[1], out
+
+
+def test_up_refuses_a_domain_where_a_driver_of_its_names_runs(tmp_path: Path) -> None:
+    """A node of a name ``up`` would start (here a driver, as the launch file starts it) is
+    found before anything starts: one line, exit 2, and the node is left as it was."""
+    from probe import Probe, start_node
+
+    from thruster_fdd.lifetime import stop_children
+    from thruster_fdd_shore.nodes.lifecycle_client import get_state
+
+    driver = start_node("esc_driver", "/thruster/t0", {"port": str(tmp_path / "none.tty")})
+    try:
+        with Probe("driver_name_probe") as probe:
+            state = get_state(probe.node, probe.executor, "/thruster/t0/esc_driver", 30.0)
+            assert state == "unconfigured"
+            up = subprocess.run(
+                ["thruster-fdd", "up", "--duration", "5", "--no-record"],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            assert up.returncode == 2, up.stdout + up.stderr
+            assert len(up.stderr.strip().splitlines()) == 1, up.stderr
+            assert "/thruster/t0/esc_driver" in up.stderr
+            state = get_state(probe.node, probe.executor, "/thruster/t0/esc_driver", 10.0)
+            assert state == "unconfigured", "up changed a driver it did not start"
+    finally:
+        stop_children({"driver": driver}, timeout_s=10.0)

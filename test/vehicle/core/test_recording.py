@@ -155,6 +155,17 @@ def test_a_bag_is_never_overwritten(tmp_path: Path) -> None:
         _recorder(tmp_path)
 
 
+def test_a_folder_the_recorder_did_not_create_is_not_written_into(tmp_path: Path) -> None:
+    """Another recorder's folder before its first message (no metadata.yaml yet) is refused."""
+    first = _recorder(tmp_path)
+    assert list(first.bag_dir.iterdir()) == []
+    with pytest.raises(FileExistsError):
+        _recorder(tmp_path)
+    first.write("/a", "p/msg/T", bytes(8), 1)
+    first.close()
+    assert sorted(p.name for p in first.bag_dir.iterdir()) == ["metadata.yaml", "r_0.mcap"]
+
+
 def test_metadata_follows_a_recording_that_is_killed(tmp_path: Path) -> None:
     import yaml
 

@@ -155,11 +155,13 @@ def test_kill_9_loses_at_most_the_last_flush_period(graph: Graph, tmp_path: Path
 
 
 def test_full_disk_is_reported_and_the_node_survives(graph: Graph, tmp_path: Path) -> None:
-    (tmp_path / "test").mkdir()
-    (tmp_path / "test" / "test_0.mcap").symlink_to("/dev/full")
-    recorder = _start_recorder(tmp_path)
+    # Only the telemetry, which comes when this test publishes it.
+    recorder = _start_recorder(tmp_path, include="^/thruster/")
     try:
         _wait_subscribed(graph)
+        # The recorder made its bag folder at start and opens its first file at the first
+        # message: that file is the full device.
+        (tmp_path / "test" / "test_0.mcap").symlink_to("/dev/full")
         # Bounded generously: in a full suite the recorder once took longer than 10 s to say it.
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not any(
@@ -172,6 +174,40 @@ def test_full_disk_is_reported_and_the_node_survives(graph: Graph, tmp_path: Pat
         assert recorder.poll() is None, "the recorder must keep running"
     finally:
         stop_children({"recorder": recorder}, timeout_s=15.0)
+
+
+def test_two_recorders_with_one_prefix_write_two_whole_bags(graph: Graph, tmp_path: Path) -> None:
+    """Started together with the same output folder and prefix, each recorder writes a bag
+    folder of its own (the second one ``<prefix>_2``), and both bags read whole."""
+    from rosbags.highlevel import AnyReader
+
+    recorders = {"a": _start_recorder(tmp_path), "b": _start_recorder(tmp_path)}
+    try:
+        subscribed = graph.probe.spin_until(
+            lambda: graph.pub.get_subscription_count() >= 2,  # type: ignore[attr-defined]
+            20.0,
+            0.05,
+        )
+        assert subscribed, "the recorders never both subscribed"
+        sent = graph.publish_for(1.5)
+    finally:
+        assert not stop_children(recorders, timeout_s=15.0), "no clean stop"
+    assert [p.returncode for p in recorders.values()] == [0, 0]
+    bags = sorted(p.name for p in tmp_path.iterdir())
+    assert bags == ["test", "test_2"]
+    for name in bags:
+        assert sorted(p.name for p in (tmp_path / name).iterdir()) == [
+            "metadata.yaml",
+            f"{name}_0.mcap",
+        ]
+        with AnyReader([tmp_path / name]) as bag:
+            conns = [c for c in bag.connections if c.topic == "/thruster/r0/esc/telemetry"]
+            seqs = [
+                bag.deserialize(raw, c.msgtype).sequence
+                for c, _, raw in bag.messages(connections=conns)
+            ]
+        assert len(seqs) >= 0.9 * sent, f"{name}: recorded {len(seqs)} of {sent}"
+        assert seqs == sorted(set(seqs)), f"{name}: messages repeated or out of order"
 
 
 def test_unwritable_folder_is_reported(graph: Graph, tmp_path: Path) -> None:

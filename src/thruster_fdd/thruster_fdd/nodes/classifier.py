@@ -15,13 +15,16 @@ restart; one that fails the checks is refused (the parameter change fails with t
 the old one keeps running. A classifier made for the nominal model whose residuals arrive now
 runs at once; one made for another nominal model is staged and takes over at the first residual
 of that model, so ``thruster-fdd reload`` changes the pair atomically: each residual is always
-diagnosed by the classifier made for its nominal model. The other parameters are read at start
+diagnosed by the classifier made for its nominal model. While a model is staged, another
+``model_dir`` is refused (one reload at a time) but the staged one again, or the running one,
+which cancels the stage. The other parameters are read at start
 only (a change is refused).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -84,6 +87,18 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
 )
 
 
+def stream_options(value: Callable[[str], Any]) -> dict[str, Any]:
+    """The ``DiagnosisStream`` options from the node's parameters (``value``: a parameter's
+    value by name), as the node makes its stream; ``up`` checks a model with the defaults."""
+    threshold = float(value("unknown_threshold"))
+    return {
+        "hop_s": float(value("hop_s")),
+        "hysteresis": int(value("hysteresis")),
+        "unknown_threshold": threshold if threshold >= 0 else None,
+        "false_alarms_per_hour": float(value("false_alarms_per_hour")),
+    }
+
+
 class ClassifierNode(Node):
     """Publishes the diagnosis of one thruster (see module docstring)."""
 
@@ -96,13 +111,7 @@ class ClassifierNode(Node):
         p = self.get_parameter
         self._id = p("thruster_id").value
         model_dir = p("model_dir").value or str(default_models_dir() / "classifier")
-        threshold = float(p("unknown_threshold").value)
-        self._stream_options: dict[str, Any] = {
-            "hop_s": float(p("hop_s").value),
-            "hysteresis": int(p("hysteresis").value),
-            "unknown_threshold": threshold if threshold >= 0 else None,
-            "false_alarms_per_hour": float(p("false_alarms_per_hour").value),
-        }
+        self._stream_options = stream_options(lambda name: p(name).value)
         self._activate(ClassifierModel.load(model_dir), model_dir)
         self._staged: tuple[ClassifierModel, str] | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -148,6 +157,17 @@ class ClassifierNode(Node):
             if param.name != "model_dir":
                 continue
             model_dir = param.value or str(default_models_dir() / "classifier")
+            if self._staged is not None and model_dir not in (self._staged[1], self._model_dir):
+                # One reload at a time: replacing a staged model would break the pair whose
+                # nominal model is being loaded now.
+                staged = self._staged[0]
+                reason = (
+                    f"a reload is in progress: {staged.model_id} is staged for the first "
+                    f"residual of nominal model {staged.nominal_model_id}; set model_dir back "
+                    f"to {self._model_dir} to cancel it"
+                )
+                self.get_logger().warning(f"refused {model_dir}: {reason}")
+                return SetParametersResult(successful=False, reason=reason)
             try:
                 model = ClassifierModel.load(model_dir)
             except ValueError as exc:

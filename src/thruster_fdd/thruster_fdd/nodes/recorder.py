@@ -5,7 +5,8 @@ Discovers topics periodically (new ones are picked up as they appear), subscribe
 transient-local, deep, when every publisher is, so the history published before the recorder
 matched — the first residuals of a run — is recorded too, as rosbag2 does), and
 hands the bytes to ``core.traces.recording.McapRecorder``, which writes the bag folder
-``<output_dir>/<prefix>`` with its ``metadata.yaml``; the publishers' QoS profiles and type
+``<output_dir>/<prefix>`` (``<prefix>_2``, ... when that folder exists: a recorder writes only
+into a folder it created) with its ``metadata.yaml``; the publishers' QoS profiles and type
 hashes go into the bag (``ros2 bag play`` offers the same QoS again). Its ``/diagnostics``
 status lists in ``matched`` the topics whose subscription has matched a publisher, published
 at once when that changes: ``up`` activates the drivers only when their telemetry is matched,
@@ -22,6 +23,7 @@ Ctrl-C or by the death of the ``up`` that started it, it finishes the bag.
 
 from __future__ import annotations
 
+import errno
 import importlib
 import re
 import time
@@ -33,7 +35,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from thruster_fdd.core.traces.recording import BAG_METADATA, McapRecorder, RecordingPolicy
+from thruster_fdd.core.traces.recording import McapRecorder, RecordingPolicy
 from thruster_fdd.nodes.common import (
     Limit,
     declare_parameters,
@@ -46,6 +48,8 @@ from thruster_fdd.nodes.common import (
 _THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
 # At least the depth of the deepest transient-local publisher (fdd/residual keeps 500).
 _LATCHED_DEPTH = 1000
+MAX_BAG_SUFFIX = 1000
+"""Most bag folders of one prefix: ``<prefix>``, ``<prefix>_2``, ... ``<prefix>_1000``."""
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("output_dir", "recordings", "folder of the bag folders (created if missing)"),
@@ -154,20 +158,30 @@ class Recorder(Node):
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_diagnostics)
         self._discover()
 
-    def _bag_dir(self) -> Path:
-        """``<output_dir>/<prefix>``, or with ``_2``, ``_3``... when that bag exists (a retry
-        after a write error, or a prefix used twice)."""
+    def _create_recorder(self) -> McapRecorder:
+        """A recorder in a bag folder this node creates: ``<output_dir>/<prefix>``, or with
+        ``_2``, ``_3``... when that folder exists (another recorder's bag, or one being made by
+        a recorder started in the same second with the same prefix).
+
+        Raises
+        ------
+        OSError
+            If no folder can be created (``MAX_BAG_SUFFIX`` names taken, or not writable).
+        """
         base = Path(self._output_dir) / self._prefix
-        path, n = base, 1
-        while (path / BAG_METADATA).exists():
-            n += 1
-            path = base.with_name(f"{base.name}_{n}")
-        return path
+        for n in range(1, MAX_BAG_SUFFIX + 1):
+            path = base if n == 1 else base.with_name(f"{base.name}_{n}")
+            try:
+                return McapRecorder(path, self._policy, self._metadata)
+            except FileExistsError:
+                if not path.parent.is_dir():
+                    raise  # output_dir is a file: no name will do
+        raise FileExistsError(errno.EEXIST, f"{base} and {base.name}_2..{MAX_BAG_SUFFIX} exist")
 
     def _open_recorder(self) -> None:
         self._last_attempt = time.monotonic()
         try:
-            self._recorder = McapRecorder(self._bag_dir(), self._policy, self._metadata)
+            self._recorder = self._create_recorder()
             for topic, (type_name, offered, type_hash) in self._topics.items():
                 self._recorder.add_topic(topic, type_name, offered, type_hash)
             self._recovered()

@@ -117,46 +117,33 @@ def check_output(path: Path, option: str, *, folder: bool = False) -> None:
 def check_models(models: Path) -> None:
     """Refuse a models folder whose exported models a node would refuse at start.
 
-    Checks ``models/nominal`` (every card field) and, when it holds a card,
-    ``models/classifier``: the SHA-256 of every file each card lists, and that the classifier
-    was made with this nominal model. A node started on them would exit 1 with the same reason;
-    this says it before anything starts, naming the file (exit 2). The classifier card's other
-    fields are left to the node: checking them here would import the classifier's compiled
-    code (about a second, on every ``up``).
+    Loads ``models/nominal`` and, when it holds a card, ``models/classifier`` as their nodes
+    do: the vehicle's loaders (every card field and range, the SHA-256 of every file, the
+    weights against the card) and the classifier's stream with the node's default parameters
+    (``up`` sets no other), and checks that the classifier was made with this nominal model at
+    its sample time. A node started on them would exit 1 with the same reason; this says it
+    before anything starts, naming the file (exit 2).
 
     Raises
     ------
     ModelMismatchError
         Naming the file and what is wrong.
     """
-    import json
-
-    from thruster_fdd.core.artifact import CARD_FILE, check_files, file_sha256
+    from thruster_fdd.core.artifact import CARD_FILE
+    from thruster_fdd.core.diagnosis.model import ClassifierModel
+    from thruster_fdd.core.diagnosis.stream import DiagnosisStream
     from thruster_fdd.core.errors import ModelMismatchError
-    from thruster_fdd.core.nominal.card import read_nominal_card
+    from thruster_fdd.core.nominal.runtime import NominalModel
+    from thruster_fdd.nodes import classifier as classifier_node
+    from thruster_fdd_shore.core.diagnosis.offline import check_pair
 
-    nominal = read_nominal_card(models / "nominal")
-    check_files(models / "nominal", nominal)
-    card = models / "classifier" / CARD_FILE
-    if not card.is_file():
+    nominal = NominalModel.load(models / "nominal")
+    if not (models / "classifier" / CARD_FILE).is_file():
         return
+    classifier = ClassifierModel.load(models / "classifier")
+    defaults = {name: default for name, default, _ in classifier_node.PARAMETERS}
     try:
-        raw = json.loads(card.read_text())
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise ModelMismatchError(f"{card}: not valid JSON ({exc})") from exc
-    files = raw.get("files") if isinstance(raw, dict) else None
-    if not isinstance(files, dict) or not files:
-        raise ModelMismatchError(f"{card}: lists no files with their SHA-256")
-    for name, digest in files.items():
-        path = card.parent / str(name)
-        if Path(str(name)).name != name or not path.is_file():
-            raise ModelMismatchError(f"{path}: missing (or not a file name)")
-        if file_sha256(path) != digest:
-            raise ModelMismatchError(
-                f"{path}: SHA-256 differs from the one {CARD_FILE} records (changed or damaged)"
-            )
-    if raw.get("nominal_model_id") != nominal.model_id:
-        raise ModelMismatchError(
-            f"{card.parent}: made with nominal model {raw.get('nominal_model_id')}, not "
-            f"{nominal.model_id} of {models / 'nominal'}"
-        )
+        DiagnosisStream(classifier, **classifier_node.stream_options(defaults.__getitem__))
+    except ValueError as exc:
+        raise ModelMismatchError(f"{models / 'classifier' / CARD_FILE}: {exc}") from None
+    check_pair(nominal, classifier, models / "classifier")

@@ -12,7 +12,7 @@ HELP = "record every topic of the graph to a rosbag2 bag folder (MCAP files)"
 DESCRIPTION = (
     "Run the recorder node in the foreground: every discovered topic, as raw CDR, into "
     "a rosbag2 bag folder --out/<start time>/ (metadata.yaml and size/duration-split MCAP "
-    "files) until Ctrl-C. More settings: the "
+    "files; <start time>_2/ ... when that folder exists) until Ctrl-C. More settings: the "
     "recorder's ROS parameters (README)."
 )
 

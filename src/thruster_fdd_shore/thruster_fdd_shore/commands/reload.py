@@ -7,7 +7,11 @@ at once when it was made for the nominal model running now, else stages it for t
 residual of the new nominal model), then the nominal model. A refusal of either leaves the old
 pair running (the classifier is set back when the nominal model refuses) and exit 1 says which
 node refused and why. Success is confirmed by the classifier's ``/diagnostics`` status naming
-the new model.
+the new model, or, while telemetry is idle, naming it as staged in a status sent after this
+reload's last change. One reload at a time per thruster: while a classifier is staged, the
+node refuses another one (exit 1, nothing changed), so two concurrent reloads cannot mix
+their pairs; a classifier alone that the node can only stage (made for another nominal model)
+is set back.
 """
 
 from __future__ import annotations
@@ -199,11 +203,25 @@ def _reload_thruster(session: _Session, tid: str, pair: Pair) -> str | None:
                 f"{ns}/nominal_model refused: {reason}; the classifier was {back}: the old "
                 "pair keeps running"
             )
+    # Only statuses from now on: what the classifier says after this reload's last change.
+    session.status.pop(("classifier", tid), None)
     if session.wait_status(tid, "model_id", pair.classifier_id):
         models = f"nominal model {pair.nominal_id} and " if pair.nominal is not None else ""
         print(f"{tid}: now running {models}classifier {pair.classifier_id}")
         return None
     if pair.nominal is not None:
+        status = session.status.get(("classifier", tid))
+        if status is None or status.get("staged_model_id") != pair.classifier_id:
+            said = (
+                f"no status within {session.timeout_s:g} s"
+                if status is None
+                else f"it runs {status.get('model_id')}, stages "
+                f"{status.get('staged_model_id') or 'nothing'}"
+            )
+            return (
+                f"{ns}/classifier does not stage {pair.classifier_id} ({said}): another change "
+                f"came in between; {ns}/nominal_model runs {pair.nominal_id}"
+            )
         # Telemetry may be idle: the classifier takes over at the new model's first residual.
         print(
             f"{tid}: loaded nominal model {pair.nominal_id}; classifier {pair.classifier_id} "
@@ -211,9 +229,13 @@ def _reload_thruster(session: _Session, tid: str, pair: Pair) -> str | None:
             f"{session.timeout_s:g} s)"
         )
         return None
+    # Made for another nominal model than the one running, it would wait for residuals that
+    # never come and hold up every other reload: set back.
+    restored, why = session.set_model_dir(classifier, previous)
+    back = "set back" if restored else f"could not be set back ({why})"
     return (
         f"{ns}/classifier staged {pair.classifier_id} but does not run it: it was made for "
-        "another nominal model than the one running (reload the pair with --models DIR)"
+        f"another nominal model than the one running (reload the pair with --models DIR); {back}"
     )
 
 

@@ -32,6 +32,7 @@ import tempfile
 import threading
 import time
 import typing
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from types import UnionType
@@ -62,7 +63,9 @@ DESCRIPTION = (
     "(port: in --config) get none. One vehicle process hosts every thruster's ESC driver "
     "(configured and activated through its lifecycle services), nominal model and classifier; "
     "a recorder writes every topic to MCAP and is restarted if it exits. "
-    "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent)."
+    "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent). "
+    "One up per ROS domain: it refuses a domain where another up, or a node of the names it "
+    "starts, runs."
 )
 
 DRIVER_SETTINGS = (
@@ -87,6 +90,13 @@ residual and diagnosis publishers before the drivers are activated, s."""
 RECORDED_TOPICS = ("esc/telemetry", "fdd/residual", "fdd/diagnosis")
 """Per-thruster topics the recorder must have matched before the drivers publish: the bag then
 holds every sample the live models used, so ``replay`` and ``diagnose`` reproduce them."""
+
+NEIGHBOUR_DISCOVERY_S = 3.0
+"""How long ``up`` listens on its ROS domain for nodes of the names it would start before it
+starts any, s (DDS discovery of a running graph took 0.1-2.7 s on a busy 2-core machine)."""
+
+UP_NODE = "thruster_fdd_up"
+"""The name of ``up``'s own node (the live table's), by which a second ``up`` finds it."""
 
 RECORDER_BACKOFF_S = (1.0, 60.0)
 """Delay before the first restart of an exited recorder, and the longest (doubling), s."""
@@ -563,8 +573,33 @@ def _start(cmd: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen[b
         )
 
 
+def node_names(plans: tuple[ThrusterPlan, ...], models: Path, record: bool) -> list[str]:
+    """The fully qualified names of the nodes ``up`` starts (its own ``UP_NODE`` first)."""
+    names = [f"/{UP_NODE}", "/health", *(["/recorder"] if record else [])]
+    for plan in plans:
+        ns = f"/thruster/{plan.id}"
+        names += [f"{ns}/esc_driver", *(f"{ns}/{st.node}" for st in exported_stages(models))]
+        if plan.port is None:
+            names.append(f"{ns}/command_player")
+    return names
+
+
+def shared_names(node: Any, names: list[str], ours: set[str]) -> list[str]:
+    """The names among ``names`` that a node on the ROS domain holds besides ours: a name in
+    ``ours`` is held by one node of ours, so it counts when two or more hold it."""
+    counts = Counter(node.get_fully_qualified_node_names())
+    return [name for name in names if counts[name] > (1 if name in ours else 0)]
+
+
 def run(args: argparse.Namespace) -> int:
-    """Start the node set, print the live table, stop everything on Ctrl-C or --duration."""
+    """Start the node set, print the live table, stop everything on Ctrl-C or --duration.
+
+    One ``up`` per ROS domain: before it starts any process it listens for
+    ``NEIGHBOUR_DISCOVERY_S`` and refuses (exit 2) when a node of a name it would start, or
+    another ``up``, is on the domain. It drives the lifecycle of the drivers of the vehicle
+    process it started only, while that process runs and no other node has a driver's name;
+    every wait ends at once on Ctrl-C or when a child exits.
+    """
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -580,31 +615,62 @@ def run(args: argparse.Namespace) -> int:
         # Once here rather than in every emulator at once.
         ensure_built("hott")
     models = (args.models or default_models_dir()).resolve()
-    _check_inputs(args, plans, models)
-    reference = health_reference(models, plans[0].preset)
-    run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
-    params_file = run_dir / "params.yaml"
-    write_parameters(node_parameters(plans, rate, run_dir, models), params_file)
     env = child_env()
     try:
         env[EXECUTOR_ENV] = args.executor or executor_kind()
     except ValueError as exc:
         raise BadInputError(str(exc)) from None
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    stop_with_parent()
-
+    domain = os.environ.get("ROS_DOMAIN_ID", "0")
     children: dict[str, subprocess.Popen[bytes]] = {}
     drivers = [f"/thruster/{p.id}/esc_driver" for p in plans]
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    monitor = Monitor([p.id for p in plans])
-    executor = make_executor(env[EXECUTOR_ENV])
-    executor.add_node(monitor)
-    prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
-    recorder_restarts = 0
+    # Up's own node, named UP_NODE: it is on the domain before any child starts, so of two ups
+    # started together each finds the other.
+    monitor = Monitor([p.id for p in plans], UP_NODE)
+    executor: Any = None  # made after the input checks
+    listen_until = time.monotonic() + NEIGHBOUR_DISCOVERY_S
+    stop = threading.Event()
+    run_dir: Path | None = None
+    activating = False  # from the first activate request on, drivers may be active
     clean = False  # the run folder is removed only after a clean run
+
+    def interrupted() -> str | None:
+        """Why the waiting must end now: a stop request, a dead child, a driver's name that
+        another node on the domain has too (its services would reach both)."""
+        if stop.is_set():
+            return "stopped"
+        dead = sorted(n for n, p in children.items() if n != "recorder" and p.poll() is not None)
+        if dead:
+            return f"{', '.join(dead)} exited"
+        shared = shared_names(monitor, drivers, set(drivers))
+        if shared:
+            return f"another node named {shared[0]} is on ROS_DOMAIN_ID={domain}"
+        return None
+
     try:
+        # The checks run while DDS discovers the domain's nodes.
+        _check_inputs(args, plans, models)
+        reference = health_reference(models, plans[0].preset)
+        executor = make_executor(env[EXECUTOR_ENV])
+        executor.add_node(monitor)
+        names = node_names(plans, models, not args.no_record)
+        ours = {names[0]}
+        spin_until(executor, lambda: bool(shared_names(monitor, names, ours)), listen_until)
+        taken = shared_names(monitor, names, ours)
+        if taken:
+            raise BadInputError(
+                f"ROS_DOMAIN_ID={domain} already has {', '.join(taken)}: another thruster-fdd "
+                "up (or the launch file) runs there; stop it or give this one another "
+                "ROS_DOMAIN_ID"
+            )
+        run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
+        params_file = run_dir / "params.yaml"
+        write_parameters(node_parameters(plans, rate, run_dir, models), params_file)
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, lambda *_: stop.set())
+        stop_with_parent()
+        prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
+        recorder_restarts = 0
         # The recorder starts first, so it is listening when the first telemetry comes.
         if not args.no_record:
             children["recorder"] = _start(
@@ -617,14 +683,18 @@ def run(args: argparse.Namespace) -> int:
             f"{p.id}: {'serial ' + p.port if p.port else 'simulated ' + p.preset}" for p in plans
         )
         print(f"thruster-fdd up: {len(plans)} thruster(s) at {rate:g} Hz ({kinds})")
-        domain = os.environ.get("ROS_DOMAIN_ID", 0)
         print(f"ports, parameters and logs: {run_dir}   (ROS_DOMAIN_ID={domain})")
         stages = [f"{st.node} ({models / st.folder})" for st in exported_stages(models)]
         print(f"models: {', '.join(stages) if stages else f'none in {models}'}")
-        if not args.no_record:
-            print(f"recording every topic to the bag {args.record_dir.resolve() / prefix}")
+        cut_short: str | None = None
         for transition in ("configure", "activate"):
-            problems = change_states(monitor, executor, drivers, transition, LIFECYCLE_TIMEOUT_S)
+            activating = activating or transition == "activate"
+            problems = change_states(
+                monitor, executor, drivers, transition, LIFECYCLE_TIMEOUT_S, interrupted
+            )
+            cut_short = interrupted()
+            if cut_short is not None:
+                break
             if problems:
                 for target, why in problems.items():
                     print(f"thruster-fdd up: {target}: {why}; see {run_dir}", file=sys.stderr)
@@ -641,9 +711,17 @@ def run(args: argparse.Namespace) -> int:
                 ) -> bool:
                     # A recorder that died is not waited for: the loop below restarts it.
                     dead = recorder.poll() is not None
-                    return dead or stop.is_set() or wanted <= monitor.recorder_matched
+                    return dead or interrupted() is not None or wanted <= monitor.recorder_matched
 
                 matched = spin_until(executor, ready, deadline)
+                cut_short = interrupted()
+                if cut_short is not None:
+                    break
+                # The folder the recorder made: <prefix>, or <prefix>_2... when that was taken.
+                bag = monitor.recorder_bag or (
+                    f"{args.record_dir.resolve() / prefix} (not yet confirmed by the recorder)"
+                )
+                print(f"recording every topic to the bag {bag}")
                 if not matched:
                     missing = ", ".join(sorted(wanted - monitor.recorder_matched))
                     print(
@@ -652,6 +730,12 @@ def run(args: argparse.Namespace) -> int:
                         f"(see {run_dir}/recorder.log)",
                         file=sys.stderr,
                     )
+        if cut_short is not None:
+            # A stop request ends the run as cleanly as after the table; a dead child is a
+            # failure (the main loop's rule).
+            clean = stop.is_set()
+            print(f"thruster-fdd up: {cut_short} before the drivers were active", file=sys.stderr)
+            return EXIT_OK if clean else EXIT_FAILED
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period
@@ -693,14 +777,31 @@ def run(args: argparse.Namespace) -> int:
         clean = True
         return EXIT_OK
     finally:
-        if children.get("vehicle") is not None and children["vehicle"].poll() is None:
-            # Neutral to every bridge before the processes stop (they send it again on exit).
-            change_states(monitor, executor, drivers, "deactivate", 5.0)
+        vehicle = children.get("vehicle")
+        if activating and vehicle is not None and vehicle.poll() is None:
+            # Neutral to every bridge before the processes stop (they send it again on exit);
+            # not through a name another node has too, whose services would reach both.
+            shared = shared_names(monitor, drivers, set(drivers))
+            if shared:
+                print(
+                    f"thruster-fdd up: not deactivating {', '.join(shared)}: another node of "
+                    f"that name is on ROS_DOMAIN_ID={domain} (ours send neutral as they stop)",
+                    file=sys.stderr,
+                )
+            change_states(
+                monitor,
+                executor,
+                [d for d in drivers if d not in shared],
+                "deactivate",
+                5.0,
+                lambda: None if vehicle.poll() is None else "the vehicle process exited",
+            )
         stop_children(children, timeout_s=5.0)
-        executor.shutdown()
+        if executor is not None:
+            executor.shutdown()
         monitor.destroy_node()
         rclpy.try_shutdown()
-        if clean and not getattr(args, "keep_run_dir", False):
+        if run_dir is not None and clean and not getattr(args, "keep_run_dir", False):
             shutil.rmtree(run_dir, ignore_errors=True)
-        else:
+        elif run_dir is not None:
             print(f"thruster-fdd up: ports, parameters and logs kept in {run_dir}", file=sys.stderr)

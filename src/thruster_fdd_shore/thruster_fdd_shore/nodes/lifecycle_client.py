@@ -9,7 +9,7 @@ lifecycle manager can do the same.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from lifecycle_msgs.srv import ChangeState, GetState
@@ -43,7 +43,12 @@ FROM_STATES = {
 
 
 def change_states(
-    node: Node, executor: Any, targets: Sequence[str], transition: str, timeout_s: float
+    node: Node,
+    executor: Any,
+    targets: Sequence[str],
+    transition: str,
+    timeout_s: float,
+    abort: Callable[[], str | None] = lambda: None,
 ) -> dict[str, str]:
     """Request ``transition`` of every node in ``targets`` at once and wait for the answers.
 
@@ -66,6 +71,10 @@ def change_states(
         ``shutdown``.
     timeout_s : float
         Longest wait in all (for the services to appear and for the answers), s.
+    abort : callable
+        Checked at every step of every wait (``spin_until``'s, at least every 50 ms): a reason
+        (a stop request, a dead process) ends the waiting at once, and every target not done
+        yet gets that reason.
 
     Returns
     -------
@@ -91,7 +100,14 @@ def change_states(
         return clients[target].call_async(request)
 
     try:
-        spin_until(executor, lambda: all(c.service_is_ready() for c in clients.values()), deadline)
+        spin_until(
+            executor,
+            lambda: abort() is not None or all(c.service_is_ready() for c in clients.values()),
+            deadline,
+        )
+        reason = abort()
+        if reason is not None:
+            return dict.fromkeys(targets, reason)
         asked: dict[str, list[Future]] = {}
         for target, client in clients.items():
             if client.service_is_ready():
@@ -101,8 +117,15 @@ def change_states(
         while asked and time.monotonic() < deadline:
             wait = min(deadline, time.monotonic() + ASK_AGAIN_S)
             spin_until(
-                executor, lambda: all(any(f.done() for f in fs) for fs in asked.values()), wait
+                executor,
+                lambda: (
+                    abort() is not None or all(any(f.done() for f in fs) for fs in asked.values())
+                ),
+                wait,
             )
+            reason = abort()
+            if reason is not None:
+                return problems | dict.fromkeys(asked, reason)
             for target, futures in list(asked.items()):
                 answers = [f.result().success for f in futures if f.done()]
                 if any(answers):
@@ -112,7 +135,8 @@ def change_states(
                 if not answers or len(futures) > 1:
                     # A refusal of the only request is the answer; otherwise the state tells.
                     left = deadline - time.monotonic()
-                    state = get_state(node, executor, target, min(ASK_AGAIN_S, max(left, 0.0)))
+                    wait_s = min(ASK_AGAIN_S, max(left, 0.0))
+                    state = get_state(node, executor, target, wait_s, abort)
                 if state == GOAL_STATE[transition]:
                     del asked[target]
                 elif answers:
@@ -128,13 +152,23 @@ def change_states(
     return problems
 
 
-def get_state(node: Node, executor: Any, target: str, timeout_s: float) -> str | None:
+def get_state(
+    node: Node,
+    executor: Any,
+    target: str,
+    timeout_s: float,
+    abort: Callable[[], str | None] = lambda: None,
+) -> str | None:
     """The current state label of lifecycle node ``target`` (``unconfigured``, ``inactive``,
-    ``active``, ``finalized``), or None when it does not answer within ``timeout_s``."""
+    ``active``, ``finalized``), or None when it does not answer within ``timeout_s`` or
+    ``abort`` gives a reason first (as in :func:`change_states`)."""
     deadline = time.monotonic() + timeout_s
     client = node.create_client(GetState, f"{target}/get_state")
     try:
-        if not spin_until(executor, client.service_is_ready, deadline):
+        ready = spin_until(
+            executor, lambda: abort() is not None or client.service_is_ready(), deadline
+        )
+        if not ready or abort() is not None:
             return None
         # Asked again every ASK_AGAIN_S: the service may be ready to the client before the
         # server's answer can reach it, and Fast DDS then drops the answer ("failed to send
@@ -143,8 +177,13 @@ def get_state(node: Node, executor: Any, target: str, timeout_s: float) -> str |
         while time.monotonic() < deadline:
             futures.append(client.call_async(GetState.Request()))
             wait = min(deadline, time.monotonic() + ASK_AGAIN_S)
-            if spin_until(executor, lambda: any(f.done() for f in futures), wait):
-                done = next(f for f in futures if f.done())
+            spin_until(
+                executor, lambda: abort() is not None or any(f.done() for f in futures), wait
+            )
+            if abort() is not None:
+                return None
+            done = next((f for f in futures if f.done()), None)
+            if done is not None:
                 return str(done.result().current_state.label)
         return None
     finally:

@@ -35,14 +35,16 @@ class _Row:
 
 
 class Monitor(Node):
-    """Collects what ``thruster_ids`` publish (see module docstring)."""
+    """Collects what ``thruster_ids`` publish (see module docstring); the node is ``name``."""
 
-    def __init__(self, thruster_ids: list[str]) -> None:
-        super().__init__("monitor")
+    def __init__(self, thruster_ids: list[str], name: str) -> None:
+        super().__init__(name)
         self.rows = {tid: _Row() for tid in thruster_ids}
         # Topics the recorder's subscriptions have matched a publisher on (its status'
         # ``matched``), the latest it reported.
         self.recorder_matched: set[str] = set()
+        # The bag folder the recorder reports writing (its status' ``bag``), empty until then.
+        self.recorder_bag = ""
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
         sensor = qos_profile_sensor_data
         ids = thruster_ids
@@ -80,6 +82,8 @@ class Monitor(Node):
                 for kv in status.values:
                     if kv.key == "matched":
                         self.recorder_matched = set(filter(None, kv.value.split(",")))
+                    elif kv.key == "bag":
+                        self.recorder_bag = kv.value
             for tid, row in self.rows.items():
                 if status.name == status_name("esc", tid):
                     row.health = f"{LEVELS.get(status.level[0], '?')}: {status.message}"

@@ -116,7 +116,9 @@ class McapRecorder:
     Parameters
     ----------
     bag_dir : str or Path
-        The bag folder, created if missing; its files are ``<folder name>_<index>.mcap``.
+        The bag folder, created here and only here (its parent if missing): a folder that
+        exists already, even an empty one, is not written into, so two recorders never share
+        one. Its files are ``<folder name>_<index>.mcap``.
     policy : RecordingPolicy
         Splitting, chunking, flushing, compression.
     metadata : dict of str to str
@@ -130,7 +132,7 @@ class McapRecorder:
     Raises
     ------
     FileExistsError
-        If ``bag_dir`` already holds a bag (``metadata.yaml``).
+        If ``bag_dir`` exists (a bag, or a folder another recorder has just made).
     OSError
         If the folder cannot be created or a file cannot be written (the caller reports it).
     """
@@ -154,9 +156,9 @@ class McapRecorder:
         self._stats: list[_FileStats] = []
         self.files: list[Path] = []
         self.messages_written = 0
-        if (self.bag_dir / BAG_METADATA).exists():
-            raise FileExistsError(f"{self.bag_dir}: already holds a bag")
-        self.bag_dir.mkdir(parents=True, exist_ok=True)
+        self.bag_dir.parent.mkdir(parents=True, exist_ok=True)
+        # Exclusive: of two recorders given one folder, one gets it and the other an error.
+        self.bag_dir.mkdir()
 
     def add_topic(
         self,
