@@ -1,6 +1,6 @@
 """What the node tests share: the probe (``thruster_fdd_shore.nodes.probe``) and the node processes
 under test (stopped with ``thruster_fdd.lifetime.stop_children``, as ``up`` and ``replay`` stop
-theirs).
+theirs), and the replay check of a bag a live run recorded.
 
 Each test graph runs the node under test as a process from its entry module (as ``thruster-fdd
 up`` starts it) and talks to it from a probe node in the test process, on a private rclpy
@@ -9,16 +9,25 @@ context spun by a single-threaded executor in the test's thread.
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from thruster_fdd.lifetime import node_command
 from thruster_fdd_shore.nodes.probe import Probe
 
-__all__ = ["DriverWatch", "Probe", "non_finite_fields", "start_node", "watch_driver"]
+__all__ = [
+    "DriverWatch",
+    "Probe",
+    "non_finite_fields",
+    "replay_and_diagnose",
+    "start_node",
+    "watch_driver",
+]
 
 
 def start_node(
@@ -78,3 +87,29 @@ def watch_driver(probe: Probe, namespace: str, thruster_id: str) -> DriverWatch:
         reliable,
     )
     return watch
+
+
+def replay_and_diagnose(bag: Path, out: Path) -> tuple[subprocess.CompletedProcess, dict, dict]:
+    """``thruster-fdd replay`` and ``diagnose`` of a recorded bag: the replay's process, its JSON
+    and the ``diagnose`` JSON."""
+    replay = subprocess.run(
+        ["thruster-fdd", "replay", str(bag), "--json", str(out / "r.json")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    print(replay.stdout, replay.stderr[-2000:])
+    assert (out / "r.json").is_file(), replay.stderr[-2000:]
+    offline = subprocess.run(
+        ["thruster-fdd", "diagnose", str(bag), "--json", str(out / "d.json")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    print(offline.stderr[-2000:])
+    assert offline.returncode == 0, offline.stderr[-2000:]
+    return (
+        replay,
+        json.loads((out / "r.json").read_text()),
+        json.loads((out / "d.json").read_text()),
+    )

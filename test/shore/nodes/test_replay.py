@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from probe import replay_and_diagnose
 
 from thruster_fdd.core.artifact import default_models_dir
 from thruster_fdd_shore.core.diagnosis.offline import diagnose_trace
@@ -63,3 +64,56 @@ def test_replay_is_deterministic_and_equals_offline_diagnosis(tmp_path: Path) ->
     assert online == [(round(origin + w["t_end"], 3), w["label"]) for w in offline["windows"]]
     assert len(online) > 100
     print(f"replay speed {first['speedup']:.0f}x real time")
+
+
+def test_a_recording_started_while_the_vehicle_runs_replays_to_the_live_windows(
+    tmp_path: Path,
+) -> None:
+    """``thruster-fdd record`` started after the vehicle: the bag begins mid-stream. Every live
+    decision whose window and model history lie in the bag is reproduced exactly by replay and
+    by diagnose; the leading ones are counted as not comparable, and so are the labels, whose
+    evidence began before the recording."""
+    import signal
+    import time
+
+    up = subprocess.Popen(
+        ["thruster-fdd", "up", "--no-record", "--duration", "58", "--signal", "multilevel",
+         "--print-period", "2", "--fault", "t0:broken_blade_2@25"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )  # fmt: skip
+    record = None
+    try:
+        assert up.stdout is not None
+        deadline = time.monotonic() + 60.0
+        for line in up.stdout:  # the first table: the vehicle runs
+            if line.startswith("[t =") or time.monotonic() > deadline:
+                break
+        time.sleep(4.0)
+        record = subprocess.Popen(
+            ["thruster-fdd", "record", "--out", str(tmp_path / "rec")],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        time.sleep(38.0)
+        record.send_signal(signal.SIGINT)
+        assert record.wait(timeout=30) == 0
+        rest, _ = up.communicate(timeout=60)
+        assert up.returncode == 0, rest[-3000:]
+    finally:
+        for proc in (record, up):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+    (bag,) = (tmp_path / "rec").iterdir()
+    replay, result, offline = replay_and_diagnose(bag, tmp_path)
+    (thruster,) = result["thrusters"]
+    assert thruster["source"] == "recorded"
+    assert thruster["agreement"] == 1.0, thruster
+    assert thruster["not_comparable"].get("before_recording", 0) > 0, thruster
+    assert not thruster["labels_compared"]
+    assert thruster["compared"] >= 10, thruster
+    assert replay.returncode == 0, replay.stdout
+    replayed = [round(t, 3) for t, _ in thruster["diagnoses"]]
+    assert replayed == [round(w["t_end"], 3) for w in offline["windows"]]
+    assert offline.get("not_comparable", {}) == thruster["not_comparable"]

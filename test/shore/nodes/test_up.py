@@ -166,10 +166,12 @@ def test_a_live_fault_recorded_by_up_replays_to_the_same_diagnoses(tmp_path: Pat
     assert "expected (recorded)" in replay.stdout
     assert replay.returncode == 0, replay.stdout + replay.stderr[-2000:]
     # The same windows as live, decision for decision (``unknown`` included): the bag holds the
-    # first samples the live model used (up waits for the recorder), and replay and diagnose
-    # decide on the samples the live model used (issue 50, item 1).
+    # first samples the live model used (up waits for the recorder), so every decision and its
+    # label are compared, and replay and diagnose decide on the samples the live model used.
     (thruster,) = json.loads((tmp_path / "r.json").read_text())["thrusters"]
     assert thruster["agreement"] == 1.0, thruster
+    assert thruster["labels_compared"], thruster
+    assert thruster["not_comparable"] == {}, thruster
     replayed = [(round(t, 3), label) for t, label in thruster["diagnoses"]]
     offline = subprocess.run(
         ["thruster-fdd", "diagnose", str(bag), "--json", str(tmp_path / "d.json")],

@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.errors import BadInputError
@@ -17,6 +18,9 @@ from thruster_fdd_shore.commands.common import (
     check_output,
     positive_float,
 )
+
+if TYPE_CHECKING:
+    from thruster_fdd.core.traces.data import Trace
 
 NAME = "diagnose"
 HELP = "offline diagnosis of a trace: label changes, first fault, overall (JSON); --expect for CI"
@@ -83,10 +87,36 @@ def check_expectation(result: dict, label: str, after_s: float | None) -> tuple[
     return True, f"expected {label}: published at {times[0]:.1f} s"
 
 
+def _replayed_samples(
+    trace: Trace, recording: Path, models: Path, hop_s: float
+) -> tuple[Trace, dict[str, int]]:
+    """The samples of a recording's ``trace`` that ``replay`` publishes (the live model's, from
+    where fresh nodes reproduce the live decisions: ``replay_check.align_bag``), and the live
+    decisions not reproduced, by reason."""
+    import warnings
+
+    from thruster_fdd.core.errors import PartialInputWarning
+    from thruster_fdd_shore.core.traces.replay_check import (
+        chain_timing,
+        load_recording,
+        replayed_samples,
+    )
+
+    # Reading the trace warned about damage and skipped splits already.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PartialInputWarning)
+        bags = load_recording(recording, chain_timing(models, hop_s))
+    for bag in bags:
+        if bag.thruster_id == trace.thruster_id:
+            reasons = bag.comparable.not_comparable if bag.comparable is not None else {}
+            return replayed_samples(trace, bag), dict(reasons)
+    return trace, {}
+
+
 def run(args: argparse.Namespace) -> int:
     """Diagnose ``args.trace``; print the label changes; check ``--expect``."""
     from thruster_fdd.core.artifact import CARD_FILE, default_models_dir
-    from thruster_fdd_shore.core.traces.files import bag_files, is_bag, read_traces
+    from thruster_fdd_shore.core.traces.files import is_bag, read_traces
 
     # The input first: a typo answers at once, before torch (about 2.4 s) is imported.
     if not args.trace.exists():
@@ -107,20 +137,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {args.trace} holds {len(traces)} traces ({ids}); using the first "
               "(--thruster ID)", file=sys.stderr)  # fmt: skip
     trace = traces[0]
+    not_comparable: dict[str, int] = {}
     if is_bag(args.trace) or args.trace.suffix == ".mcap":
-        from thruster_fdd.core.nominal.card import read_nominal_card
-        from thruster_fdd_shore.core.traces.replay_check import live_samples
-
-        # The samples the live model used, as ``replay`` publishes them: the same windows.
-        files = bag_files(args.trace) if is_bag(args.trace) else [args.trace]
-        period_s = read_nominal_card(models / "nominal").sample_time_s
-        trace = live_samples(trace, files, period_s)
+        trace, not_comparable = _replayed_samples(trace, args.trace, models, args.hop)
     import torch
 
     from thruster_fdd_shore.core.diagnosis.offline import diagnose_trace
 
     torch.set_num_threads(1)
     result = diagnose_trace(trace, models / "nominal", models / "classifier", hop_s=args.hop)
+    if not_comparable:
+        result["not_comparable"] = not_comparable
     if not result["windows"]:
         span = float(trace.t[-1] - trace.t[0]) if len(trace) else 0.0
         raise BadInputError(
@@ -129,6 +156,12 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.json is not None:
         write_text(args.json, json.dumps(result, indent=1) + "\n")
+    if not_comparable:
+        from thruster_fdd_shore.core.traces.replay_check import NOT_COMPARABLE_REASONS
+
+        for reason, n in not_comparable.items():
+            print(f"note: {n} live decision(s) not reproduced: {NOT_COMPARABLE_REASONS[reason]}",
+                  file=sys.stderr)  # fmt: skip
     start, overall, fault = result["start"], result["overall"], result["first_fault"]
     print(
         f"{args.trace}: {overall['label']} (confidence {overall['confidence']:.2f}) over "

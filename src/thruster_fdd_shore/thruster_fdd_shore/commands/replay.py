@@ -1,9 +1,10 @@
 """``thruster-fdd replay``: a recording's telemetry through the model nodes, checked.
 
 Starts a ``nominal_model`` (and, when a classifier is exported, a ``classifier``) node per
-thruster of the bag, publishes the samples the live model used (``traces.replay_check``) over
-reliable QoS, collects the published diagnoses and compares them with the bag's recorded
-diagnoses or ground truth. Exit 0 when every thruster passes, 1 when one does not.
+thruster of the bag, publishes the samples the live model used from where fresh nodes
+reproduce the live decisions (``traces.replay_check.align_bag``) over reliable QoS, collects
+the published diagnoses and compares them with the bag's recorded diagnoses or ground truth.
+Exit 0 when every thruster passes, 1 when one does not.
 
 Pacing, so no queue can overflow and nothing is lost however fast it runs: with a classifier,
 the replay stays at most ``MAX_LAG`` samples ahead of the classifier's last decision, and the
@@ -22,7 +23,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,12 +38,16 @@ from thruster_fdd_shore.commands.common import (
     check_output,
     positive_float,
 )
-from thruster_fdd_shore.core.traces.files import is_bag, read_splits
+from thruster_fdd_shore.core.traces.files import is_bag
 from thruster_fdd_shore.core.traces.replay_check import (
+    NOT_COMPARABLE_REASONS,
     ReplayCheck,
     ThrusterBag,
+    WindowDecision,
+    chain_timing,
     check_replay,
-    load_bag,
+    diagnosis_of,
+    load_recording,
 )
 
 NAME = "replay"
@@ -113,8 +118,8 @@ class Played:
         Samples that got no residual (or, with a classifier, that the nodes' counters miss).
     stalls : int
         Times the classifier stopped deciding (the replay is then aborted).
-    diagnoses : dict of str to list of (float, str)
-        Per thruster: the diagnoses received for replayed samples (stamp s, label).
+    diagnoses : dict of str to list of WindowDecision
+        Per thruster: the diagnoses received for replayed samples.
     counters : dict of str to dict of str to int
         Per thruster: the model nodes' residual counters from ``/diagnostics``.
     """
@@ -123,7 +128,7 @@ class Played:
     wall_s: float
     timeouts: int
     stalls: int
-    diagnoses: dict[str, list[tuple[float, str]]]
+    diagnoses: dict[str, list[WindowDecision]]
     counters: dict[str, dict[str, int]]
 
 
@@ -152,7 +157,7 @@ class Replayer:
         reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         ids = [b.thruster_id for b in bags]
         self.answered: dict[str, set[int]] = {tid: set() for tid in ids}
-        self.diagnoses: dict[str, list[tuple[float, str]]] = {tid: [] for tid in ids}
+        self.diagnoses: dict[str, list[WindowDecision]] = {tid: [] for tid in ids}
         self.diagnosed: dict[str, int] = {tid: -1 for tid in ids}
         self.counters: dict[str, dict[str, int]] = {tid: {} for tid in ids}
         self._pubs: dict[str, Any] = {}
@@ -195,7 +200,7 @@ class Replayer:
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if stamp_ns in index:  # not the UNKNOWN a silent classifier says on its own clock
             self.diagnosed[tid] = max(self.diagnosed[tid], index[stamp_ns])
-            self.diagnoses[tid].append((stamp_ns * 1e-9, msg.label))
+            self.diagnoses[tid].append(diagnosis_of(stamp_ns, msg))
 
     def _spin(self, timeout_s: float) -> None:
         self._probe.executor.spin_once(timeout_sec=timeout_s)
@@ -310,6 +315,8 @@ def report(
             f"expected ({r.source}) {' -> '.join(r.expected_sequence or []) or '-'}; "
             f"agreement {agreement}: {'PASS' if r.passed else 'FAIL'}"
         )
+        if r.source == "recorded":
+            lines.append(f"  {_compared_line(r)}")
     document = {
         "samples": played.samples,
         "wall_s": played.wall_s,
@@ -317,31 +324,31 @@ def report(
         "timeouts": played.timeouts,
         "classifier_stalls": played.stalls,
         "residual_counters": played.counters,
-        "thrusters": [r.__dict__ | {"diagnoses": played.diagnoses[r.thruster_id]} for r in results],
+        "thrusters": [
+            r.__dict__ | {"diagnoses": [(d.t_s, d.label) for d in played.diagnoses[r.thruster_id]]}
+            for r in results
+        ],
     }
     passed = all(r.passed for r in results) and played.timeouts == 0 and played.stalls == 0
     return lines, document, passed
 
 
-def merge_bags(parts: list[tuple[ThrusterBag, ...]]) -> tuple[ThrusterBag, ...]:
-    """One ``ThrusterBag`` per thruster from the files of a split recording, in file order (a
-    sample a later file repeats is kept once)."""
-    merged: dict[str, ThrusterBag] = {}
-    for bags in parts:
-        for bag in bags:
-            old = merged.get(bag.thruster_id)
-            if old is None:
-                merged[bag.thruster_id] = bag
-                continue
-            keep = [i for i, ns in enumerate(bag.stamps_ns) if ns > old.stamps_ns[-1]]
-            merged[bag.thruster_id] = replace(
-                old,
-                stamps_ns=old.stamps_ns + tuple(bag.stamps_ns[i] for i in keep),
-                raw=old.raw + tuple(bag.raw[i] for i in keep),
-                recorded=old.recorded + bag.recorded,
-                truth=old.truth or bag.truth,
-            )
-    return tuple(merged[tid] for tid in sorted(merged))
+def _compared_line(r: ReplayCheck) -> str:
+    """What a check against recorded decisions compared and left out, in words."""
+    what = (
+        "windows and labels"
+        if r.labels_compared
+        else (
+            "windows only (probabilities, coverage, gate): the labels' evidence began before the "
+            "recording"
+        )
+    )
+    parts = [f"compared {r.compared} decisions: {what}"]
+    for reason, n in (r.not_comparable or {}).items():
+        parts.append(f"{n} live decisions not comparable: {NOT_COMPARABLE_REASONS[reason]}")
+    if r.after_recorded:
+        parts.append(f"{r.after_recorded} replayed after the last recorded diagnosis")
+    return "; ".join(parts)
 
 
 def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> dict[str, subprocess.Popen[bytes]]:
@@ -367,7 +374,6 @@ def _start_nodes(bags: tuple[ThrusterBag, ...], models: Path) -> dict[str, subpr
 def run(args: argparse.Namespace) -> int:
     """Replay ``args.bag`` and check the diagnoses; returns the exit code."""
     from thruster_fdd.core.artifact import default_models_dir
-    from thruster_fdd.core.nominal.card import read_nominal_card
 
     if not (is_bag(args.bag) or args.bag.is_file()):
         raise BadInputError(f"{args.bag}: no such recording (an MCAP file or a bag folder)")
@@ -377,11 +383,13 @@ def run(args: argparse.Namespace) -> int:
         check_output(args.json, "--json")
     models = (args.models or default_models_dir()).resolve()
     check_models(models)
-    period_s = read_nominal_card(models / "nominal").sample_time_s
-    if is_bag(args.bag):  # an empty or damaged split is skipped with a warning
-        bags = merge_bags(read_splits(args.bag, lambda file: load_bag(file, period_s)))
-    else:
-        bags = merge_bags([load_bag(args.bag, period_s)])
+    bags = load_recording(args.bag, chain_timing(models))
+    empty = [b.thruster_id for b in bags if not b.stamps_ns]
+    if empty:
+        raise BadInputError(
+            f"{args.bag}: no decision of thruster {', '.join(empty)} can be reproduced: "
+            f"the recording holds no full window with the model history before it"
+        )
     procs = _start_nodes(bags, models)
     try:
         replayer = Replayer(bags, (models / "classifier" / CARD_FILE).is_file())
