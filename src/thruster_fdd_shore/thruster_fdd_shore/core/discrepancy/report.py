@@ -414,46 +414,42 @@ REST_REGIONS = 2
 """Regions per signal listed in report.json's ``rest.where`` (the largest error shares)."""
 
 
-def rest(result: Result, data: Measured, sim: dict[str, np.ndarray]) -> dict:
-    """What the final model leaves unexplained, for report.json's ``rest``.
+def rest(result: Result, details: dict) -> dict:
+    """What the final model leaves unexplained, for report.json's ``rest``, from the final
+    model's signatures and regions in ``details`` (``write_report``'s details.json mapping).
 
     ``structured``: the held-out score (mean squared residual in noise-variance units) is above
     ``STRUCTURED``, so the residual is more than noise and the named effects do not account for
     the whole difference; ``cues``: the plain-language reading of the residual's signatures
     (``describe``); ``where``: the operating regions holding most of each signal's squared
-    held-out residual.
+    held-out residual (``regions`` lists them largest first).
     """
-    where = []
-    for signal in ("rpm", "current"):
-        rows = [r for r in regions(sim, data, data.held) if r.signal == signal]
-        where += [
-            {
-                "signal": r.signal,
-                "region": r.region,
-                "error_share": r.error_share,
-                "sample_share": r.sample_share,
-            }
-            for r in rows[:REST_REGIONS]
-        ]
+    keys = ("signal", "region", "error_share", "sample_share")
+    where = [
+        {k: r[k] for k in keys}
+        for signal in ("rpm", "current")
+        for r in [r for r in details["regions_after"] if r["signal"] == signal][:REST_REGIONS]
+    ]
     score = result.final.gap.score
     return {
         "structured": bool(score > STRUCTURED),
         "score": score,
         "threshold": STRUCTURED,
-        "cues": describe(signatures(sim, data)),
+        "cues": describe(details["signatures_after"]),
         "where": where,
     }
 
 
-def report_json(result: Result, data: Measured, sims: dict[str, dict]) -> dict:
+def report_json(result: Result, details: dict) -> dict:
     """The report.json mapping (docs/contracts.md): ``Result.report()`` plus the base changes
-    the search adopted, the base parameters left on their bound, and the ``rest``."""
+    the search adopted, the base parameters left on their bound, and the ``rest``, taken from
+    ``details`` (``write_report``'s details.json mapping, computed once)."""
     return {
         **result.report(),
-        "base_changes": list(result.base_changes),
-        "replaced": [{"effect": name, "by": rival} for name, rival in result.replaced],
-        "at_bound": at_bound(result),
-        "rest": rest(result, data, sims["after"]),
+        "base_changes": details["base_changes"],
+        "replaced": [{"effect": name, "by": rival} for name, rival in details["replaced"]],
+        "at_bound": details["at_bound"],
+        "rest": rest(result, details),
     }
 
 
@@ -533,7 +529,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict[str, P
         plots = _plots(result, data, sims, stage)
         write_text(
             stage / "report.json",
-            json_text(report_json(result, data, sims), nonfinite=lambda _x: None, indent=2),
+            json_text(report_json(result, details), nonfinite=lambda _x: None, indent=2),
         )
         dump_config(result.final.config, stage / "model.yaml")
         write_text(stage / "report.md", markdown(result, data, sims, plots))

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from thruster_fdd.core.artifact import CARD_FILE
 from thruster_fdd.core.diagnosis.model import read_classifier_card
 from thruster_fdd.core.diagnosis.stream import (
     LOW_EXCITATION,
@@ -171,7 +172,7 @@ def chain_timing(models: Path, hop_s: float = 1.0) -> ChainTiming:
     with decisions every ``hop_s`` s (a window of 4 samples without a classifier)."""
     card = read_nominal_card(models / "nominal")
     window = 4
-    if (models / "classifier").is_dir():
+    if (models / "classifier" / CARD_FILE).is_file():
         window = read_classifier_card(models / "classifier").lookbacks["window_samples"]
     return ChainTiming(
         period_s=card.sample_time_s,
