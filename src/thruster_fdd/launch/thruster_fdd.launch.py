@@ -6,9 +6,9 @@
 Every ``/thruster/<id>/esc_driver`` entry of the parameters file (standard ``node:
 ros__parameters:`` form; the package's ``config/thruster_fdd.yaml`` by default) is a thruster:
 its ESC driver, nominal model and classifier run in one ``container`` process with every other
-thruster's (as ``thruster-fdd up`` runs them), the health node (``/thruster_fdd/health`` for
-the allocator, over every thruster in the file's order) in its own, and with ``record`` the
-recorder in its own. With ``autostart``
+thruster's (as ``thruster-fdd up`` runs them), with the health node (``/thruster_fdd/health``
+for the allocator, over every thruster in the file's order) and, with ``record``, the recorder,
+which writes what the process publishes without subscribing to it. With ``autostart``
 the drivers configure and activate themselves; ``autostart:=false`` leaves them unconfigured
 for a lifecycle manager of your own (``<node>/change_state``).
 """
@@ -41,10 +41,13 @@ def thruster_ids(params_file: str) -> list[str]:
 
 
 def _nodes(context: LaunchContext) -> list[Node]:
-    """The container of the thrusters' stages, the health node and (``record``) the recorder."""
+    """The vehicle's container: the thrusters' stages, the health node and (``record``) the
+    recorder."""
     params_file = LaunchConfiguration("params_file").perform(context)
     autostart = LaunchConfiguration("autostart").perform(context).lower() == "true"
+    record = LaunchConfiguration("record").perform(context).lower() == "true"
     ids = thruster_ids(params_file)
+    # The health node's thruster_ids are the thrusters': the masks' bits follow the file.
     vehicle = Node(
         package="thruster_fdd",
         executable="container",
@@ -52,28 +55,16 @@ def _nodes(context: LaunchContext) -> list[Node]:
             *STAGES,
             "--thrusters",
             *ids,
+            "--vehicle",
+            "health",
+            *(["recorder"] if record else []),
             "-p",
             f"esc_driver:autostart={autostart}",
         ],
         parameters=[params_file],
         output="screen",
     )
-    # The thrusters' ids win over a /health entry's own list: the masks' bits follow the file.
-    health = Node(
-        package="thruster_fdd",
-        executable="health",
-        parameters=[params_file, {"thruster_ids": ids}],
-        output="screen",
-    )
-    if LaunchConfiguration("record").perform(context).lower() != "true":
-        return [vehicle, health]
-    recorder = Node(
-        package="thruster_fdd",
-        executable="recorder",
-        parameters=[params_file],
-        output="screen",
-    )
-    return [vehicle, health, recorder]
+    return [vehicle]
 
 
 def generate_launch_description() -> LaunchDescription:

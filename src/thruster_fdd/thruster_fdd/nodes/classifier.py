@@ -43,8 +43,10 @@ from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
     RELIABLE_10,
+    RecordSink,
     declare_parameters,
     diagnostics_publisher,
+    publish_recorded,
     publish_status,
     refuse_start_only,
     run,
@@ -121,6 +123,8 @@ class ClassifierNode(Node):
         self._stale = False
         self._received = 0
         self._source_id = ""
+        self._local_subscribers: list[Callable[[Diagnosis], None]] = []
+        self._sink: RecordSink | None = None
         self._pub = self.create_publisher(
             Diagnosis, "fdd/diagnosis", RELIABLE_10, event_callbacks=NO_PUB_EVENTS
         )
@@ -187,6 +191,17 @@ class ClassifierNode(Node):
             self.get_logger().info(reason)
             return SetParametersResult(successful=True, reason=reason)
         return SetParametersResult(successful=True)
+
+    def record_to(self, sink: RecordSink) -> tuple[str, ...]:
+        """Hand every message of ``fdd/diagnosis`` to ``sink`` (the recorder of this process, which
+        then does not subscribe to it over DDS); returns it, fully qualified."""
+        self._sink = sink
+        return (self.resolve_topic_name("fdd/diagnosis"),)
+
+    def add_local_subscriber(self, callback: Callable[[Diagnosis], None]) -> None:
+        """Also hand every published diagnosis to ``callback``, in this process (the health
+        node of a container), before the DDS write."""
+        self._local_subscribers.append(callback)
 
     def take_residuals_from(self, source: NominalModelNode) -> None:
         """Get residuals from ``source``, a nominal-model node in this process, not from DDS.
@@ -268,7 +283,9 @@ class ClassifierNode(Node):
         else:
             out.header.stamp = self.get_clock().now().to_msg()
         out.header.frame_id = self._id
-        self._pub.publish(out)
+        for callback in self._local_subscribers:
+            callback(out)
+        publish_recorded(self._pub, out, self._sink)
 
     def _publish_status(self) -> None:
         now = self._now_s()

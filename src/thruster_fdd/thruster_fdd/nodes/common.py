@@ -28,6 +28,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from rclpy.subscription import Subscription
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
@@ -239,9 +241,9 @@ def subscribe_thrusters(
     topic: str,
     callback: Callable[[str, Any], None],
     qos: QoSProfile,
-) -> None:
+) -> dict[str, Subscription]:
     """Subscribe ``node`` to ``/thruster/<id>/<topic>`` of every thruster; ``callback(id, msg)``
-    gets each message with the id of the thruster that sent it.
+    gets each message with the id of the thruster that sent it. Returns the subscriptions by id.
 
     Raises
     ------
@@ -254,14 +256,32 @@ def subscribe_thrusters(
             check_thruster_id(tid)
         except BadInputError as exc:
             raise BadParameterError(f"parameter thruster_ids: {exc}") from None
-    for tid in thruster_ids:
-        node.create_subscription(
+    return {
+        tid: node.create_subscription(
             msg_type,
             f"/thruster/{tid}/{topic}",
             lambda msg, tid=tid: callback(tid, msg),
             qos,
             event_callbacks=NO_SUB_EVENTS,
         )
+        for tid in thruster_ids
+    }
+
+
+RecordSink = Callable[[str, type, bytes], None]
+"""Where a node of a container hands each message it publishes or takes, as ``(topic,
+message class, CDR bytes)``: the recorder of the same process (``Recorder.record``)."""
+
+
+def publish_recorded(publisher: Publisher, msg: Any, sink: RecordSink | None) -> None:
+    """Publish ``msg``; with a ``sink``, serialise it once and hand the same bytes to DDS and to
+    the sink (the recorder then never takes the message again over DDS)."""
+    if sink is None:
+        publisher.publish(msg)
+        return
+    data = serialize_message(msg)
+    publisher.publish(data)
+    sink(publisher.topic_name, type(msg), data)
 
 
 STATUS_PREFIX = "thruster_fdd: "

@@ -16,8 +16,15 @@ no work per entity on a wake), or with ``THRUSTER_FDD_EXECUTOR=single`` one Sing
 per thruster, each in its own thread (``spin_in_threads``: rclpy rebuilds the wait set from every
 entity of an executor's nodes on each wake).
 
+With ``--vehicle health recorder`` the container also hosts the vehicle-wide nodes: the health
+node takes every thruster's residuals and diagnoses by direct calls, and the recorder writes
+what the nodes of this process publish (and the commands the drivers take) from the bytes they
+publish, each message serialised once, by a writer thread (``core.traces.bag_writer``): nothing
+of the process subscribes to its own 50 Hz topics over DDS. Other topics of the graph (e.g.
+``/diagnostics``) the recorder takes over DDS, as the standalone recorder does.
+
 Usage: ``python -m thruster_fdd.nodes.container KIND [KIND ...] --thrusters t0 t1
-[-p [KIND:]name=value ...] [--ros-args --params-file FILE]``.
+[--vehicle health recorder] [-p [KIND:]name=value ...] [--ros-args --params-file FILE]``.
 """
 
 from __future__ import annotations
@@ -53,6 +60,11 @@ KINDS = {
     "nominal_model": ("thruster_fdd.nodes.nominal_model", "NominalModelNode"),
     "classifier": ("thruster_fdd.nodes.classifier", "ClassifierNode"),
 }
+VEHICLE_KINDS = {
+    "health": ("thruster_fdd.nodes.health", "HealthNode"),
+    "recorder": ("thruster_fdd.nodes.recorder", "Recorder"),
+}
+"""Node kinds of which one runs per vehicle (``--vehicle``), not one per thruster."""
 
 
 def node_class(kind: str) -> type:
@@ -63,8 +75,8 @@ def node_class(kind: str) -> type:
     ValueError
         If ``kind`` is neither, or its module or class cannot be found.
     """
-    if kind in KINDS:
-        module, cls_name = KINDS[kind]
+    if kind in KINDS or kind in VEHICLE_KINDS:
+        module, cls_name = {**KINDS, **VEHICLE_KINDS}[kind]
     else:
         module, sep, cls_name = kind.partition(":")
         if not sep or not module or not cls_name:
@@ -127,6 +139,16 @@ def main(argv: list[str] | None = None) -> None:
         "--thrusters", nargs="+", required=True, metavar="ID", help="one node of each kind per id"
     )
     parser.add_argument(
+        "--vehicle",
+        nargs="+",
+        default=[],
+        choices=sorted(VEHICLE_KINDS),
+        metavar="KIND",
+        help="vehicle-wide nodes, one each: health (its thruster_ids are --thrusters), "
+        "recorder (records what this process's nodes publish and take without subscribing to "
+        "it, and every other topic of the graph over DDS)",
+    )
+    parser.add_argument(
         "--no-intra-process",
         dest="intra_process",
         action="store_false",
@@ -150,9 +172,10 @@ def main(argv: list[str] | None = None) -> None:
         print(f"container {' '.join(args.kinds)}: {exc}", file=sys.stderr)
         sys.exit(2)
     try:
-        params = parse_parameters(args.kinds, args.params)
+        params = parse_parameters([*args.kinds, *args.vehicle], args.params)
         kind = executor_kind()
         classes = {name: node_class(name) for name in args.kinds}
+        vehicle_classes = {name: node_class(name) for name in args.vehicle}
     except ValueError as exc:
         parser.error(str(exc))
     stop_with_parent()
@@ -164,6 +187,7 @@ def main(argv: list[str] | None = None) -> None:
     # events: one executor for everything; single: one per thruster, each in a thread.
     executors: list[Any] = [make_executor(kind)] if kind == "events" else []
     nodes = []
+    stages: dict[str, dict[str, Any]] = {}
     try:
         for tid in args.thrusters:
             if kind != "events":
@@ -176,10 +200,24 @@ def main(argv: list[str] | None = None) -> None:
                 executors[-1].add_node(made[name])
             if args.intra_process:
                 connect_stages(made)
+            stages[tid] = made
+        vehicle: dict[str, Any] = {}
+        if vehicle_classes and kind != "events":
+            executors.append(make_executor(kind))
+        for name, node_cls in vehicle_classes.items():
+            overrides = list(params[name])
+            if name == "health":
+                overrides.append(Parameter("thruster_ids", value=list(args.thrusters)))
+            vehicle[name] = node_cls(parameter_overrides=overrides)
+            nodes.append(vehicle[name])
+            executors[-1].add_node(vehicle[name])
+        if args.intra_process:
+            # Health callbacks join the stages' thread only when one executor runs them all.
+            connect_vehicle(vehicle, stages, direct_health=kind == "events")
         if len(executors) == 1:
             spin(executors[0])
         else:
-            spin_in_threads(executors, args.thrusters)
+            spin_in_threads(executors, [*args.thrusters, *(["vehicle"] if vehicle else [])])
     except BadParameterError as exc:
         print(f"container {' '.join(args.kinds)}: {exc}", file=sys.stderr)
         sys.exit(2)
@@ -200,6 +238,24 @@ def connect_stages(nodes: dict[str, Any]) -> None:
         nodes["nominal_model"].take_telemetry_from(nodes["esc_driver"])
     if {"nominal_model", "classifier"} <= nodes.keys():
         nodes["classifier"].take_residuals_from(nodes["nominal_model"])
+
+
+def connect_vehicle(
+    vehicle: dict[str, Any], stages: dict[str, dict[str, Any]], direct_health: bool
+) -> None:
+    """Wire the vehicle-wide nodes to the thrusters' nodes of this process by direct calls:
+    the health node takes residuals and diagnoses (``direct_health``), the recorder takes
+    every message the others publish (and the commands the drivers take)."""
+    health, recorder = vehicle.get("health"), vehicle.get("recorder")
+    if health is not None and direct_health:
+        for tid, made in stages.items():
+            if "nominal_model" in made:
+                health.take_from(tid, made["nominal_model"], made.get("classifier"))
+    if recorder is None:
+        return
+    for node in [*(n for made in stages.values() for n in made.values()), health]:
+        if node is not None and hasattr(node, "record_to"):
+            recorder.take_local(node.record_to(recorder.record))
 
 
 def spin_in_threads(executors: Sequence[Any], names: Sequence[str]) -> None:

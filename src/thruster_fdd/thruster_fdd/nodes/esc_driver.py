@@ -28,6 +28,7 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import serialize_message
 from thruster_fdd_msgs.msg import EscTelemetry, ThrusterCommand
 
 from thruster_fdd.core.bridge.kiss import KissDecoder, KissFrame
@@ -60,8 +61,10 @@ from thruster_fdd.nodes.common import (
     NO_SUB_EVENTS,
     RELIABLE_10,
     Limit,
+    RecordSink,
     declare_parameters,
     diagnostics_publisher,
+    publish_recorded,
     publish_status,
     run,
     status_name,
@@ -184,6 +187,8 @@ class EscDriver(LifecycleNode):
         declare_parameters(self, PARAMETERS, LIMITS)
         self._diag_pub = diagnostics_publisher(self)
         self._local_subscribers: list[Callable[[EscTelemetry], None]] = []
+        self._sink: RecordSink | None = None
+        self._command_topic = ""
         self._settings: DriverSettings | None = None
         self._link: SerialLink | None = None
         self._active = False
@@ -221,6 +226,14 @@ class EscDriver(LifecycleNode):
         the same process gets the sample before the DDS write, without DDS and the executor.
         """
         self._local_subscribers.append(callback)
+
+    def record_to(self, sink: RecordSink) -> tuple[str, ...]:
+        """Hand every ``esc/telemetry`` message published and every ``esc/command`` taken to
+        ``sink`` (the recorder of this process, which then does not subscribe to them over
+        DDS); returns both topics, fully qualified."""
+        self._sink = sink
+        self._command_topic = self.resolve_topic_name("esc/command")
+        return (self.resolve_topic_name("esc/telemetry"), self._command_topic)
 
     # ---- lifecycle -------------------------------------------------------------------------
 
@@ -458,11 +471,14 @@ class EscDriver(LifecycleNode):
         self._flags_pending = 0
         for callback in self._local_subscribers:
             callback(msg)
-        self._pub.publish(msg)
+        publish_recorded(self._pub, msg, self._sink)
 
     # ---- commands (executor thread) --------------------------------------------------------
 
     def _on_command(self, msg: ThrusterCommand) -> None:
+        if self._sink is not None:
+            # Taken from DDS as a message: serialised again for the bag.
+            self._sink(self._command_topic, ThrusterCommand, serialize_message(msg))
         try:
             self._commands.command(msg.command)
         except ValueError as exc:

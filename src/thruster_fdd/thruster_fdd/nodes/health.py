@@ -24,8 +24,10 @@ from thruster_fdd.core.diagnosis.reference import ThrustReference
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     RELIABLE_10,
+    RecordSink,
     declare_parameters,
     diagnostics_publisher,
+    publish_recorded,
     publish_status,
     run,
     status_name,
@@ -74,13 +76,39 @@ class HealthNode(Node):
         )
         self._diag_pub = diagnostics_publisher(self)
         self._received = dict.fromkeys(ids, 0)
-        subscribe_thrusters(self, ids, Diagnosis, "fdd/diagnosis", self._on_diagnosis, RELIABLE_10)
-        subscribe_thrusters(self, ids, Residual, "fdd/residual", self._on_residual, RESIDUAL_QOS)
+        self._sink: RecordSink | None = None
+        self._subs = {
+            "fdd/diagnosis": subscribe_thrusters(
+                self, ids, Diagnosis, "fdd/diagnosis", self._on_diagnosis, RELIABLE_10
+            ),
+            "fdd/residual": subscribe_thrusters(
+                self, ids, Residual, "fdd/residual", self._on_residual, RESIDUAL_QOS
+            ),
+        }
         self.create_timer(float(p("period_s").value), self._publish)
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_status)
         self.get_logger().info(
             f"health of {', '.join(ids)} on {HEALTH_TOPIC} (reference: {reference.name})"
         )
+
+    def take_from(self, tid: str, nominal_model: Any, classifier: Any | None) -> None:
+        """Get thruster ``tid``'s residuals and diagnoses from its nodes in this process
+        (``NominalModelNode``, ``ClassifierNode``; the classifier may be missing) by direct
+        calls instead of DDS: the container does this when one executor runs them all."""
+        for topic, source, callback in (
+            ("fdd/residual", nominal_model, self._on_residual),
+            ("fdd/diagnosis", classifier, self._on_diagnosis),
+        ):
+            if source is None:
+                continue
+            self.destroy_subscription(self._subs[topic].pop(tid))
+            source.add_local_subscriber(lambda msg, tid=tid, callback=callback: callback(tid, msg))
+
+    def record_to(self, sink: RecordSink) -> tuple[str, ...]:
+        """Hand every ``VehicleHealth`` published to ``sink`` (the recorder of this process,
+        which then does not subscribe to it over DDS); returns the topic."""
+        self._sink = sink
+        return (HEALTH_TOPIC,)
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -133,7 +161,7 @@ class HealthNode(Node):
                     unknown_reason=e.unknown_reason,
                 )
             )
-        self._pub.publish(out)
+        publish_recorded(self._pub, out, self._sink)
 
     def _publish_status(self) -> None:
         entries = self._tracker.snapshot(self._now_s())

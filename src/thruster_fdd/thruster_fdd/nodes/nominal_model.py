@@ -30,8 +30,10 @@ from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
     NO_SUB_EVENTS,
     Limit,
+    RecordSink,
     declare_parameters,
     diagnostics_publisher,
+    publish_recorded,
     publish_status,
     refuse_start_only,
     run,
@@ -143,6 +145,7 @@ class NominalModelNode(Node):
         self._last_reason = ""
         self._step_s: list[float] = []
         self._local_subscribers: list[Callable[[Residual], None]] = []
+        self._sink: RecordSink | None = None
         self.get_logger().info(
             f"thruster {self._id}: model {self._model.model_id} from {model_dir} "
             f"({self._model.card.mode}, {1.0 / self._model.sample_time_s:g} Hz)"
@@ -157,6 +160,12 @@ class NominalModelNode(Node):
         goes out on DDS for every other subscriber.
         """
         self._local_subscribers.append(callback)
+
+    def record_to(self, sink: RecordSink) -> tuple[str, ...]:
+        """Hand every message of ``fdd/residual`` to ``sink`` (the recorder of this process, which
+        then does not subscribe to it over DDS); returns it, fully qualified."""
+        self._sink = sink
+        return (self.resolve_topic_name("fdd/residual"),)
 
     def take_telemetry_from(self, source: EscDriver) -> None:
         """Get telemetry from ``source``, the ESC driver of this thruster in this process.
@@ -202,7 +211,7 @@ class NominalModelNode(Node):
         res = residual_message(self._id, self._model.model_id, msg, out)
         for callback in self._local_subscribers:
             callback(res)
-        self._pub.publish(res)
+        publish_recorded(self._pub, res, self._sink)
         self._published += 1
 
     def _publish_diagnostics(self) -> None:

@@ -23,19 +23,19 @@ Ctrl-C or by the death of the ``up`` that started it, it finishes the bag.
 
 from __future__ import annotations
 
-import errno
 import importlib
 import re
 import time
+from collections.abc import Iterable
 from importlib.metadata import PackageNotFoundError, version
-from pathlib import Path
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from thruster_fdd.core.traces.recording import McapRecorder, RecordingPolicy
+from thruster_fdd.core.traces.bag_writer import BagWriter
+from thruster_fdd.core.traces.recording import RecordingPolicy
 from thruster_fdd.nodes.common import (
     Limit,
     declare_parameters,
@@ -48,8 +48,6 @@ from thruster_fdd.nodes.common import (
 _THRUSTER_TOPIC = re.compile(r"^/thruster/([^/]+)/")
 # At least the depth of the deepest transient-local publisher (fdd/residual keeps 500).
 _LATCHED_DEPTH = 1000
-MAX_BAG_SUFFIX = 1000
-"""Most bag folders of one prefix: ``<prefix>``, ``<prefix>_2``, ... ``<prefix>_1000``."""
 
 PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("output_dir", "recordings", "folder of the bag folders (created if missing)"),
@@ -111,6 +109,11 @@ def _message_class(type_name: str) -> type:
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
+def type_name_of(msg_type: type) -> str:
+    """``pkg/msg/Type`` of a message class."""
+    return f"{msg_type.__module__.partition('.')[0]}/msg/{msg_type.__name__}"
+
+
 class Recorder(Node):
     """Records all discovered topics (see module docstring)."""
 
@@ -120,7 +123,7 @@ class Recorder(Node):
         p = self.get_parameter
         self._include = re.compile(p("include").value)
         self._exclude = set(p("exclude").value)
-        self._policy = RecordingPolicy(
+        policy = RecordingPolicy(
             max_file_bytes=int(float(p("max_file_mb").value) * 1024 * 1024),
             max_file_duration_s=float(p("max_file_duration_s").value),
             chunk_bytes=int(p("chunk_kb").value) * 1024,
@@ -128,67 +131,71 @@ class Recorder(Node):
             compression=p("compression").value,
         )
         self._output_dir = p("output_dir").value
-        self._prefix = p("prefix").value or time.strftime("%Y%m%d_%H%M%S")
         self._metadata = {
             "vehicle": p("vehicle").value,
             "software_version": _software_version(),
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "model_ids": p("model_ids").value,
+            # Present from the start: the writer thread reads the dict while this one updates.
+            "thruster_ids": "",
         }
-        self._recorder: McapRecorder | None = None
-        self._error = ""
-        self._error_published = True
-        self._last_attempt = 0.0
-        self._retry_after = 0.0
+        prefix = p("prefix").value or time.strftime("%Y%m%d_%H%M%S")
+        self._writer = BagWriter(self._output_dir, prefix, policy, self._metadata)
+        self._error_logged = ""
         self._subscribed: dict[str, str] = {}
         # topic -> its subscription, and the topics whose subscription has matched a publisher.
         self._recorded_subs: dict[str, Any] = {}
         self._matched: tuple[str, ...] = ()
         # topic -> (type, offered QoS profiles, type hash), for every bag this node opens.
         self._topics: dict[str, tuple[str, list[dict[str, Any]], str]] = {}
+        # Topics handed over by nodes of this process (``record``), with their type names.
+        self._local: dict[str, str] = {}
         self._thrusters: set[str] = set()
         # Topics with a message written (their publishers' QoS was looked up before the first).
         self._written: set[str] = set()
         self._received = 0
-        self._dropped = 0
         self._window = (0, time.monotonic())
         self._diag_pub = diagnostics_publisher(self)
-        self._open_recorder()
         self.create_timer(float(p("discovery_period_s").value), self._discover)
+        # The first discovery comes with the first period, after a container's ``take_local``.
         self.create_timer(float(p("diagnostics_period_s").value), self._publish_diagnostics)
-        self._discover()
 
-    def _create_recorder(self) -> McapRecorder:
-        """A recorder in a bag folder this node creates: ``<output_dir>/<prefix>``, or with
-        ``_2``, ``_3``... when that folder exists (another recorder's bag, or one being made by
-        a recorder started in the same second with the same prefix).
+    def take_local(self, topics: Iterable[str]) -> None:
+        """Record ``topics`` (fully qualified) from ``record`` calls of nodes in this process
+        instead of subscribing to them over DDS."""
+        for topic in topics:
+            self._local.setdefault(topic, "")
+            self._subscribed[topic] = ""
+            sub = self._recorded_subs.pop(topic, None)
+            if sub is not None:
+                self.destroy_subscription(sub)
+            self._note_thruster(topic)
+        self._publish_diagnostics(periodic=False)
 
-        Raises
-        ------
-        OSError
-            If no folder can be created (``MAX_BAG_SUFFIX`` names taken, or not writable).
+    def record(self, topic: str, msg_type: type, data: bytes) -> None:
+        """Record one CDR message a node of this process published or took (any thread).
+
+        The topic's publishers' QoS and type hash are looked up with its first message.
         """
-        base = Path(self._output_dir) / self._prefix
-        for n in range(1, MAX_BAG_SUFFIX + 1):
-            path = base if n == 1 else base.with_name(f"{base.name}_{n}")
-            try:
-                return McapRecorder(path, self._policy, self._metadata)
-            except FileExistsError:
-                if not path.parent.is_dir():
-                    raise  # output_dir is a file: no name will do
-        raise FileExistsError(errno.EEXIST, f"{base} and {base.name}_2..{MAX_BAG_SUFFIX} exist")
+        type_name = self._local.get(topic)
+        if not type_name:
+            type_name = self._local[topic] = type_name_of(msg_type)
+            self._subscribed[topic] = type_name
+            self._declare(topic, type_name)
+            self._written.add(topic)
+        self._received += 1
+        self._writer.write(topic, type_name, data, time.time_ns())
 
-    def _open_recorder(self) -> None:
-        self._last_attempt = time.monotonic()
-        try:
-            self._recorder = self._create_recorder()
-            for topic, (type_name, offered, type_hash) in self._topics.items():
-                self._recorder.add_topic(topic, type_name, offered, type_hash)
-            self._recovered()
-        except OSError as exc:
-            self._recorder = None
-            self._failed(f"cannot record to {self._output_dir}: {exc.strerror or exc}")
-            self.get_logger().error(self._error)
+    def _declare(self, topic: str, type_name: str) -> None:
+        offered, type_hash = self._offered(topic)
+        self._topics[topic] = (type_name, offered, type_hash)
+        self._writer.add_topic(topic, type_name, offered, type_hash)
+
+    def _note_thruster(self, topic: str) -> None:
+        match = _THRUSTER_TOPIC.match(topic)
+        if match:
+            self._thrusters.add(match[1])
+            self._metadata["thruster_ids"] = ",".join(sorted(self._thrusters))
 
     def _offered(self, topic: str) -> tuple[list[dict[str, Any]], str]:
         """The QoS profiles and the type hash the publishers of ``topic`` offer now (``[]``
@@ -208,19 +215,18 @@ class Recorder(Node):
         if not offered:
             return False
         self._topics[topic] = (type_name, offered, type_hash)
-        if self._recorder is not None:
-            self._recorder.update_topic(topic, offered, type_hash)
+        self._writer.add_topic(topic, type_name, offered, type_hash)
         self.get_logger().info(f"{topic}: publishers appeared, their QoS is recorded")
         return True
 
     def _matched_topics(self) -> tuple[str, ...]:
-        """The recorded topics whose subscription has matched at least one publisher."""
-        return tuple(
-            sorted(t for t, sub in self._recorded_subs.items() if sub.get_publisher_count() > 0)
-        )
+        """The recorded topics whose subscription has matched at least one publisher, and the
+        topics of this process's nodes (recorded from their first message on)."""
+        remote = (t for t, sub in self._recorded_subs.items() if sub.get_publisher_count() > 0)
+        return tuple(sorted({*remote, *self._local}))
 
     def _discover(self) -> None:
-        for topic in self._topics:
+        for topic in list(self._topics):
             self._adapt(topic)
         matched = self._matched_topics()
         if matched != self._matched:
@@ -241,10 +247,7 @@ class Recorder(Node):
                 self._subscribed[topic] = type_name
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
-            offered, type_hash = self._offered(topic)
-            self._topics[topic] = (type_name, offered, type_hash)
-            if self._recorder is not None:
-                self._recorder.add_topic(topic, type_name, offered, type_hash)
+            self._declare(topic, type_name)
             reliable = bool(publishers) and all(
                 info.qos_profile.reliability == ReliabilityPolicy.RELIABLE for info in publishers
             )
@@ -271,72 +274,35 @@ class Recorder(Node):
                 raw=True,
             )
             self._subscribed[topic] = type_name
-            match = _THRUSTER_TOPIC.match(topic)
-            if match:
-                self._thrusters.add(match[1])
-                self._metadata["thruster_ids"] = ",".join(sorted(self._thrusters))
+            self._note_thruster(topic)
             self.get_logger().info(f"recording {topic} [{type_name}]")
 
     def _on_message(self, topic: str, type_name: str, data: bytes) -> None:
         self._received += 1
-        if self._recorder is None:
-            if time.monotonic() - self._last_attempt > 1.0:
-                self._open_recorder()
-            if self._recorder is None:
-                self._dropped += 1
-                return
-        if self._retry_after > time.monotonic():
-            self._dropped += 1
-            return
         if topic not in self._written:
             # The file's channel is made with the first message: by then a publisher exists.
             self._adapt(topic)
             self._written.add(topic)
-        try:
-            self._recorder.write(topic, type_name, data, time.time_ns())
-            self._recovered()
-        except OSError as exc:
-            self._dropped += 1
-            self._write_failed(exc)
-
-    def _write_failed(self, exc: OSError) -> None:
-        # The file is unusable (full disk, vanished folder): drop it, retry a new one later.
-        self._failed(f"writing to {self._output_dir} failed: {exc.strerror or exc}")
-        self.get_logger().error(self._error, throttle_duration_sec=5.0)
-        if self._recorder is not None:
-            self._recorder.abandon()
-        self._retry_after = time.monotonic() + 1.0
-
-    def _failed(self, error: str) -> None:
-        self._error = error
-        self._error_published = False
-
-    def _recovered(self) -> None:
-        # A failure stays ERROR until one status said so, even if the next file works.
-        if self._error_published:
-            self._error = ""
+        self._writer.write(topic, type_name, data, time.time_ns())
 
     def _publish_diagnostics(self, periodic: bool = True) -> None:
         """The recorder's status; ``periodic`` False for an extra one between two periods (a
-        change of the matched topics): it neither flushes nor counts as the status that
-        reported an error (a subscriber may not have matched it yet)."""
+        change of the matched topics): it does not count as the status that reported an
+        error (a subscriber may not have matched it yet)."""
         received, since = self._window
         now = time.monotonic()
         rate = (self._received - received) / max(now - since, 1e-9)
-        rec = self._recorder
         if periodic:
             self._window = (self._received, now)
-            if rec is not None:
-                try:
-                    rec.flush_if_due()
-                except OSError as exc:
-                    self._write_failed(exc)
-        if self._error:
-            level, message = DiagnosticStatus.ERROR, self._error
-            self._error_published = self._error_published or periodic
+        status = self._writer.status(report=periodic)
+        if status.error:
+            level, message = DiagnosticStatus.ERROR, status.error
+            if status.error != self._error_logged:
+                self.get_logger().error(status.error)
+            self._error_logged = status.error
         else:
             level, message = DiagnosticStatus.OK, f"recording {len(self._subscribed)} topics"
-        files = [] if rec is None else rec.files
+            self._error_logged = ""
         publish_status(
             self,
             self._diag_pub,
@@ -348,22 +314,19 @@ class Recorder(Node):
                 ("output_dir", str(self._output_dir)),
                 ("messages_per_s", f"{rate:.1f}"),
                 ("topics", str(len(self._subscribed))),
-                ("dropped", str(self._dropped)),
-                ("bag", "" if rec is None else str(rec.bag_dir)),
-                ("files", ",".join(str(f) for f in files)),
+                ("dropped", str(status.dropped)),
+                ("bag", status.bag_dir),
+                ("files", ",".join(status.files)),
                 ("matched", ",".join(self._matched_topics())),
             ],
         )
 
     def shutdown(self) -> None:
-        """Finish the current file so it ends with a complete summary."""
-        if self._recorder is not None:
-            try:
-                final = {**self._metadata, "messages": str(self._recorder.messages_written)}
-                self._recorder.close(final)
-            except OSError as exc:
-                self.get_logger().error(f"could not finish {self._recorder.files[-1]}: {exc}")
-            self._recorder = None
+        """Write what is queued and finish the current file with a complete summary."""
+        self._writer.close()
+        error = self._writer.status().error
+        if error:
+            self.get_logger().error(error)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -3,19 +3,20 @@
 Processes (``process_commands``, the one place their command lines are built):
 
 - ``vehicle``: one container (``nodes/container.py``) with every thruster's ESC driver (a
-  lifecycle node), nominal model and classifier — what runs on a vehicle;
-- ``recorder``: the MCAP recorder, restarted when it exits while the rest keeps running;
+  lifecycle node), nominal model and classifier, the health node and the recorder — what runs
+  on a vehicle; the recorder writes what the vehicle's nodes publish from the bytes they publish
+  (a writer thread, retrying after disk errors), and takes the rest of the graph over DDS;
 - the simulation harness, for simulated thrusters only: a microcontroller emulator per thruster
   on a pseudo-terminal (``thruster-fdd emulate``) and one container with their command players.
 
 Every node's parameters go into one parameters file in the standard ROS form
 (``/thruster/<id>/<node>: ros__parameters:``, ``node_parameters``), which the containers load
 with ``--params-file``. ``up`` then drives the drivers' lifecycle through their services:
-configure (ports opened), a wait until the recorder has matched every thruster's telemetry,
-residual and diagnosis publishers (so the bag starts with the first sample the live models use),
+configure (ports opened), a wait until the recorder reports every thruster's telemetry,
+residual and diagnosis topics (so the bag starts with the first sample the live models use),
 and activate (commands forwarded); on Ctrl-C or ``--duration`` it
 deactivates them (neutral sent) and stops every child cleanly (SIGINT first). It prints a live
-table meanwhile.
+table meanwhile, from the nodes' once-a-second statuses on ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.labels import CLASS_NAMES
 from thruster_fdd.core.names import check_thruster_id
 from thruster_fdd.core.safe_yaml import dump_yaml, load_yaml
-from thruster_fdd.lifetime import child_env, node_command, stop_children, stop_with_parent
+from thruster_fdd.lifetime import child_env, stop_children, stop_with_parent
 from thruster_fdd_shore.commands.common import (
     EXIT_FAILED,
     EXIT_OK,
@@ -61,8 +62,8 @@ DESCRIPTION = (
     "Start the node set. Simulated thrusters (the default) each get a microcontroller emulator "
     "serving the bridge protocol on a pseudo-terminal and a command player; real thrusters "
     "(port: in --config) get none. One vehicle process hosts every thruster's ESC driver "
-    "(configured and activated through its lifecycle services), nominal model and classifier; "
-    "a recorder writes every topic to MCAP and is restarted if it exits. "
+    "(configured and activated through its lifecycle services), nominal model and classifier, "
+    "the health node and the recorder, which writes every topic to MCAP. "
     "Prints a live table per thruster; Ctrl-C stops everything cleanly (neutral commands sent). "
     "One up per ROS domain: it refuses a domain where another up, or a node of the names it "
     "starts, runs."
@@ -84,11 +85,11 @@ LIFECYCLE_TIMEOUT_S = 60.0
 process loads the models first)."""
 
 RECORDER_MATCH_TIMEOUT_S = 30.0
-"""Longest wait, after *configure*, for the recorder to match every thruster's telemetry,
-residual and diagnosis publishers before the drivers are activated, s."""
+"""Longest wait, after *configure*, for the recorder to report every thruster's telemetry,
+residual and diagnosis topics before the drivers are activated, s."""
 
 RECORDED_TOPICS = ("esc/telemetry", "fdd/residual", "fdd/diagnosis")
-"""Per-thruster topics the recorder must have matched before the drivers publish: the bag then
+"""Per-thruster topics the recorder must report before the drivers publish: the bag then
 holds every sample the live models used, so ``replay`` and ``diagnose`` reproduce them."""
 
 NEIGHBOUR_DISCOVERY_S = 3.0
@@ -97,9 +98,6 @@ starts any, s (DDS discovery of a running graph took 0.1-2.7 s on a busy 2-core 
 
 UP_NODE = "thruster_fdd_up"
 """The name of ``up``'s own node (the live table's), by which a second ``up`` finds it."""
-
-RECORDER_BACKOFF_S = (1.0, 60.0)
-"""Delay before the first restart of an exited recorder, and the longest (doubling), s."""
 
 
 MAX_THRUSTERS = 16
@@ -472,13 +470,31 @@ def exported_stages(models: Path) -> tuple[ModelStage, ...]:
 
 
 def node_parameters(
-    plans: tuple[ThrusterPlan, ...], rate: float, run_dir: Path, models: Path
+    plans: tuple[ThrusterPlan, ...],
+    rate: float,
+    run_dir: Path,
+    models: Path,
+    reference: Path | None = None,
+    record: tuple[Path, str] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Every node's parameters by fully qualified node name (the parameters file's content).
 
-    Simulated thrusters' ports are pseudo-terminals in ``run_dir``.
+    Simulated thrusters' ports are pseudo-terminals in ``run_dir``; the health node's reference
+    load curves are ``reference``; ``record`` is the recorder's (folder, bag prefix).
     """
     params: dict[str, dict[str, Any]] = {}
+    if reference is not None:
+        params["/health"] = {"reference": str(reference)}
+    if record is not None:
+        model_ids = ",".join(
+            f"{st.folder}={json.loads((models / st.folder / CARD_FILE).read_text())['model_id']}"
+            for st in exported_stages(models)
+        )
+        params["/recorder"] = {
+            "output_dir": str(record[0].resolve()),
+            "prefix": record[1],
+            "model_ids": model_ids,
+        }
     stages = exported_stages(models)
     for plan in plans:
         ns = f"/thruster/{plan.id}"
@@ -511,13 +527,12 @@ def process_commands(
     run_dir: Path,
     models: Path,
     params_file: Path,
-    reference: Path,
+    record: bool,
 ) -> dict[str, list[str]]:
-    """The command line of every process but the recorder (``recorder_command``), by name.
+    """The command line of every process, by name.
 
-    ``vehicle``: one container with every thruster's driver and the exported model stages;
-    ``health``: the vehicle's health node (one reference thruster type for the effectiveness
-    estimates, ``reference``: the first thruster's preset's). Per simulated thruster an emulator
+    ``vehicle``: one container with every thruster's driver and the exported model stages, the
+    health node and (``record``) the recorder. Per simulated thruster an emulator
     ``<id>-emulator`` (the Python emulator or the bridge firmware); one ``commands`` container
     with their command players.
     """
@@ -525,10 +540,8 @@ def process_commands(
     ros_args = ["--ros-args", "--params-file", str(params_file)]
     container = [sys.executable, "-m", "thruster_fdd.nodes.container"]
     kinds = ["esc_driver", *(st.node for st in exported_stages(models))]
-    out = {"vehicle": [*container, *kinds, "--thrusters", *ids, *ros_args]}
-    out["health"] = node_command(
-        "health", "/", {"thruster_ids": f"[{','.join(ids)}]", "reference": str(reference)}
-    )
+    vehicle = ["--vehicle", "health", *(["recorder"] if record else [])]
+    out = {"vehicle": [*container, *kinds, "--thrusters", *ids, *vehicle, *ros_args]}
     simulated = [p for p in plans if p.port is None]
     for plan in simulated:
         emulate = [sys.executable, "-m", "thruster_fdd_shore.cli", "emulate"]
@@ -549,19 +562,6 @@ def process_commands(
             *ros_args,
         ]
     return out
-
-
-def recorder_command(record_dir: Path, prefix: str, models: Path) -> list[str]:
-    """The recorder's command line: every topic to the bag ``record_dir/<prefix>/``."""
-    model_ids = ",".join(
-        f"{stage.folder}={json.loads((models / stage.folder / CARD_FILE).read_text())['model_id']}"
-        for stage in exported_stages(models)
-    )
-    return node_command(
-        "recorder",
-        "/",
-        {"output_dir": record_dir.resolve(), "prefix": prefix, "model_ids": f"'{model_ids}'"},
-    )
 
 
 def _start(cmd: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen[bytes]:
@@ -639,7 +639,7 @@ def run(args: argparse.Namespace) -> int:
         another node on the domain has too (its services would reach both)."""
         if stop.is_set():
             return "stopped"
-        dead = sorted(n for n, p in children.items() if n != "recorder" and p.poll() is not None)
+        dead = sorted(n for n, p in children.items() if p.poll() is not None)
         if dead:
             return f"{', '.join(dead)} exited"
         shared = shared_names(monitor, drivers, set(drivers))
@@ -665,18 +665,15 @@ def run(args: argparse.Namespace) -> int:
             )
         run_dir = Path(tempfile.mkdtemp(prefix="thruster_fdd-up-"))
         params_file = run_dir / "params.yaml"
-        write_parameters(node_parameters(plans, rate, run_dir, models), params_file)
+        prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
+        record = None if args.no_record else (args.record_dir, prefix)
+        write_parameters(
+            node_parameters(plans, rate, run_dir, models, reference, record), params_file
+        )
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, lambda *_: stop.set())
         stop_with_parent()
-        prefix = f"up_{time.strftime('%Y%m%d_%H%M%S')}"
-        recorder_restarts = 0
-        # The recorder starts first, so it is listening when the first telemetry comes.
-        if not args.no_record:
-            children["recorder"] = _start(
-                recorder_command(args.record_dir, prefix, models), run_dir / "recorder.log", env
-            )
-        commands = process_commands(plans, rate, run_dir, models, params_file, reference)
+        commands = process_commands(plans, rate, run_dir, models, params_file, record is not None)
         for name, cmd in commands.items():
             children[name] = _start(cmd, run_dir / f"{name}.log", env)
         kinds = ", ".join(
@@ -700,18 +697,13 @@ def run(args: argparse.Namespace) -> int:
                     print(f"thruster-fdd up: {target}: {why}; see {run_dir}", file=sys.stderr)
                 return EXIT_FAILED
             if transition == "configure" and not args.no_record:
-                # The telemetry publishers exist from configure on, and nothing is published
-                # before activate: wait for the recorder to match them, so the bag starts with
-                # the first sample the live models use.
+                # Nothing is published before activate: wait for the recorder to report the
+                # topics, so the bag starts with the first sample the live models use.
                 wanted = {f"/thruster/{p.id}/{topic}" for p in plans for topic in RECORDED_TOPICS}
                 deadline = time.monotonic() + RECORDER_MATCH_TIMEOUT_S
 
-                def ready(
-                    wanted: set[str] = wanted, recorder: subprocess.Popen = children["recorder"]
-                ) -> bool:
-                    # A recorder that died is not waited for: the loop below restarts it.
-                    dead = recorder.poll() is not None
-                    return dead or interrupted() is not None or wanted <= monitor.recorder_matched
+                def ready(wanted: set[str] = wanted) -> bool:
+                    return interrupted() is not None or wanted <= monitor.recorder_matched
 
                 matched = spin_until(executor, ready, deadline)
                 cut_short = interrupted()
@@ -727,7 +719,7 @@ def run(args: argparse.Namespace) -> int:
                     print(
                         f"thruster-fdd up: the recorder has not matched {missing} after "
                         f"{RECORDER_MATCH_TIMEOUT_S:g} s; the bag may miss the first samples "
-                        f"(see {run_dir}/recorder.log)",
+                        f"(see {run_dir}/vehicle.log)",
                         file=sys.stderr,
                     )
         if cut_short is not None:
@@ -739,7 +731,6 @@ def run(args: argparse.Namespace) -> int:
         print("Ctrl-C stops" if args.duration is None else f"running for {args.duration:g} s")
         start = time.monotonic()
         next_print = start + args.print_period
-        restart_at: float | None = None
         while not stop.is_set():
             spin_until(executor, stop.is_set, time.monotonic() + 0.05)
             now = time.monotonic()
@@ -748,28 +739,7 @@ def run(args: argparse.Namespace) -> int:
             if now >= next_print:
                 next_print += args.print_period
                 print(f"\n[t = {now - start:5.1f} s]\n{monitor.table()}", flush=True)
-            recorder = children.get("recorder")
-            if recorder is not None and recorder.poll() is not None and restart_at is None:
-                recorder_restarts += 1
-                first, longest = RECORDER_BACKOFF_S
-                delay = min(longest, first * 2 ** (recorder_restarts - 1))
-                restart_at = now + delay
-                print(
-                    f"thruster-fdd up: the recorder exited (code {recorder.returncode}); "
-                    f"restart {recorder_restarts} in {delay:g} s (see {run_dir}/recorder.log)",
-                    file=sys.stderr,
-                    flush=True,
-                )
-            if restart_at is not None and now >= restart_at:
-                restart_at = None
-                restarted = f"{prefix}_r{recorder_restarts}"
-                children["recorder"] = _start(
-                    recorder_command(args.record_dir, restarted, models),
-                    run_dir / "recorder.log",
-                    env,
-                )
-                print(f"recording to the bag {args.record_dir.resolve() / restarted}", flush=True)
-            dead = [n for n, p in children.items() if n != "recorder" and p.poll() is not None]
+            dead = [n for n, p in children.items() if p.poll() is not None]
             if dead:
                 print(f"thruster-fdd up: {', '.join(dead)} exited; see {run_dir}", file=sys.stderr)
                 return EXIT_FAILED

@@ -154,6 +154,8 @@ class McapRecorder:
         self._last_flush = time.monotonic()
         self._topics: dict[str, _Topic] = {}
         self._stats: list[_FileStats] = []
+        # topic -> ((type, hash), its QoS list object, rendered YAML): ``_topic_yaml``.
+        self._topic_yaml_cache: dict[str, tuple[tuple[str, str], object, str]] = {}
         self.files: list[Path] = []
         self.messages_written = 0
         self.bag_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -311,7 +313,31 @@ class McapRecorder:
 
     def write_metadata(self) -> None:
         """Rewrite ``metadata.yaml`` (atomically: a reader sees the old or the new one)."""
-        write_text(self.bag_dir / BAG_METADATA, dump_yaml(self.bag_metadata()))
+        write_text(self.bag_dir / BAG_METADATA, self.metadata_text())
+
+    def metadata_text(self) -> str:
+        """``bag_metadata()`` as YAML, each topic's metadata rendered once: rewritten every
+        flush, the full dump took most of a recorder's CPU at 8 thrusters."""
+        info = dict(self.bag_metadata()["rosbag2_bagfile_information"])
+        topics = info.pop("topics_with_message_count")
+        lines = [dump_yaml({"rosbag2_bagfile_information": info}).rstrip("\n")]
+        lines.append("  topics_with_message_count:" + ("" if topics else " []"))
+        for entry in topics:
+            lines.append(self._topic_yaml(entry["topic_metadata"]))
+            lines.append(f"    message_count: {entry['message_count']}")
+        return "\n".join(lines) + "\n"
+
+    def _topic_yaml(self, metadata: dict[str, Any]) -> str:
+        """One ``topic_metadata`` list entry, indented for ``topics_with_message_count``; kept
+        until the topic's QoS profiles or type hash change."""
+        name = metadata["name"]
+        key = (metadata["type"], metadata["type_description_hash"])
+        cached = self._topic_yaml_cache.get(name)
+        if cached is None or cached[0] != key or cached[1] is not metadata["offered_qos_profiles"]:
+            text = dump_yaml([{"topic_metadata": metadata}]).rstrip("\n")
+            block = "\n".join(f"  {line}" for line in text.splitlines())
+            cached = self._topic_yaml_cache[name] = (key, metadata["offered_qos_profiles"], block)
+        return cached[2]
 
     def bytes_written(self) -> int:
         """Bytes in all files of this recording so far."""
