@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
 from probe import Probe, non_finite_fields, start_node, watch_driver
@@ -122,6 +123,44 @@ def test_telemetry_flows_at_the_bridge_rate(rig: Rig) -> None:
     assert 14.0 < last.voltage_v < 16.0
     seqs = [m.sequence for m in rig.telemetry[n0:]]
     assert seqs == sorted(seqs)
+
+
+def _sample_summary(m: Any) -> tuple[str, ...]:
+    """A telemetry message as the driver's status renders it (docs/contracts.md)."""
+    return (
+        f"{m.command:.2f}",
+        str(m.pwm_us),
+        f"{m.voltage_v:.2f}",
+        f"{m.current_a:.2f}",
+        f"{m.rpm:.0f}",
+        f"{m.temperature_c:.1f}",
+    )
+
+
+def test_status_summarises_the_rate_and_the_newest_published_sample(rig: Rig) -> None:
+    """What the live table reads instead of the 50 Hz topic: a period's status carries the
+    published rate and the sample published last (one the probe received just before)."""
+
+    def hold(until: Callable[[], bool], timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not until():
+            assert time.monotonic() < deadline, "no status from the driver"
+            rig.command(0.3)
+            rig.spin_for(0.05)
+
+    # A whole period at 0.3 first, so that the sample is not an idle one.
+    end = time.monotonic() + 1.5
+    hold(lambda: time.monotonic() >= end, 2.0)
+    n0 = len(rig.diagnostics)
+    hold(lambda: len(rig.diagnostics) > n0, 10.0)
+    rig.spin_for(0.1)  # samples published before the status, on the other topic
+    values = {kv.key: kv.value for kv in rig.diagnostics[-1].values}
+    assert 0.8 * RATE_HZ <= float(values["telemetry_rate_hz"]) <= 1.2 * RATE_HZ, values
+    keys = ("command", "pwm_us", "voltage_v", "current_a", "rpm", "temperature_c")
+    summary = tuple(values[k] for k in keys)
+    assert summary in [_sample_summary(m) for m in rig.telemetry[-25:]], values
+    assert values["command"] == "0.30"
+    assert float(values["rpm"]) > 500.0
 
 
 def test_commands_are_forwarded_and_clamped(rig: Rig) -> None:

@@ -123,6 +123,59 @@ def test_nan_and_gaps_are_flagged_and_never_published_as_nan(rig: Rig) -> None:
             assert math.isfinite(value)
 
 
+def test_status_carries_the_rms_of_the_periods_ok_residuals(rig: Rig) -> None:
+    """A burst of samples within one status period: the status' RMS keys are those of the burst's
+    OK residuals (what the live table reads instead of the 50 Hz topic)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    statuses: list = []
+    sub = rig.probe.node.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda msg: statuses.extend(
+            s for s in msg.status if s.name == "thruster_fdd: nominal_model nm"
+        ),
+        QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE),
+    )
+
+    def values(status: object) -> dict[str, str]:
+        return {kv.key: kv.value for kv in status.values}  # type: ignore[attr-defined]
+
+    def next_status() -> dict[str, str]:
+        n = len(statuses)
+        assert rig.probe.spin_until(lambda: len(statuses) > n, 5.0), "no status"
+        return values(statuses[-1])
+
+    try:
+        # An idle period's status: no residual, so no RMS (the first may still count some of
+        # the previous test's samples).
+        next_status()
+        idle = next_status()
+        assert (idle["rms_residual_rpm"], idle["rms_residual_a"]) == ("-", "-")
+        for attempt in range(3):
+            before = int(next_status()["residuals_published"])  # a period has just begun
+            n0 = len(rig.residuals)
+            t0 = 6000.0 + 100.0 * attempt  # a gap: the state resets, warms up, then OK
+            for i in range(30):
+                rig.send(t0 + 0.1 * i, 0.3, 15.0, 1500.0 + 40.0 * (i % 3), 1.5 + 0.1 * (i % 2))
+                rig.spin(0.002)
+            assert rig.probe.spin_until(lambda n0=n0: len(rig.residuals) - n0 >= 30, 5.0)
+            after = next_status()
+            if int(after["residuals_published"]) - before == 30:
+                break  # the whole burst in this period
+        else:
+            pytest.fail("no burst fitted in one status period")
+        ok = [m for m in rig.residuals[n0:] if m.flags == 0]
+        assert ok, "the burst should outlast the warm-up"
+        rms_rpm = math.sqrt(sum(m.residual_rpm**2 for m in ok) / len(ok))
+        rms_a = math.sqrt(sum(m.residual_current_a**2 for m in ok) / len(ok))
+        assert float(after["rms_residual_rpm"]) == pytest.approx(rms_rpm, abs=0.051)
+        assert float(after["rms_residual_a"]) == pytest.approx(rms_a, abs=0.00051)
+    finally:
+        rig.probe.node.destroy_subscription(sub)
+
+
 @pytest.mark.parametrize(
     ("damage", "words"),
     [

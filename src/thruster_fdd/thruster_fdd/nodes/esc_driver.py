@@ -3,7 +3,7 @@
 Reads telemetry frames from the bridge with pyserial (tfdd protocol or KISS ESC telemetry),
 publishes ``EscTelemetry`` on ``esc/telemetry``, forwards ``ThrusterCommand`` from
 ``esc/command`` as command frames (clamped, rate-limited, neutral when commands stop), and
-reports the link on ``/diagnostics``.
+reports the link and the newest published sample on ``/diagnostics``.
 
 Lifecycle: *configure* reads the parameters (a bad one fails the transition, logged) and opens
 the port (a port that cannot be opened yet is retried every ``reconnect_period_s`` and reported
@@ -104,6 +104,16 @@ LIMITS: dict[str, Limit] = {
     "diagnostics_period_s": (0.01, 3600.0),
 }
 
+SAMPLE_FORMATS: tuple[tuple[str, str], ...] = (
+    ("command", ".2f"),
+    ("pwm_us", "d"),
+    ("voltage_v", ".2f"),
+    ("current_a", ".2f"),
+    ("rpm", ".0f"),
+    ("temperature_c", ".1f"),
+)
+"""Status keys of the newest published telemetry sample (``EscTelemetry`` fields) and formats."""
+
 _PORTS: SerialPorts | None = None
 
 
@@ -179,6 +189,18 @@ def _mcu_time_us(frame: DecodedFrame | KissFrame) -> int | None:
     return None
 
 
+def _sample_values(msg: EscTelemetry | None) -> list[tuple[str, str]]:
+    """Status key/values of the newest published telemetry ``msg`` ("-" before the first).
+
+    With ``telemetry_rate_hz`` they are the once-per-period summary a live view reads instead of
+    subscribing to the 50 Hz topic (every subscriber of it costs the publisher).
+    """
+    return [
+        (key, "-" if msg is None else format(getattr(msg, key), spec))
+        for key, spec in SAMPLE_FORMATS
+    ]
+
+
 class EscDriver(LifecycleNode):
     """The ESC driver of one thruster (see module docstring)."""
 
@@ -218,6 +240,9 @@ class EscDriver(LifecycleNode):
         self._flags_pending = 0
         self._decoder_stats = DecoderStats()
         self._window_start = (dict(self._counts), DecoderStats(), SeqCounts())
+        # The newest published telemetry for the status; only a reference per sample, so the
+        # 50 Hz path costs what it did.
+        self._last_published: EscTelemetry | None = None
 
     def add_local_subscriber(self, callback: Callable[[EscTelemetry], None]) -> None:
         """Also hand every published telemetry message to ``callback``, in this process.
@@ -469,6 +494,7 @@ class EscDriver(LifecycleNode):
         msg.temperature_c = float(sample.temperature_c or 0.0)
         msg.status = flags | self._flags_pending
         self._flags_pending = 0
+        self._last_published = msg
         for callback in self._local_subscribers:
             callback(msg)
         publish_recorded(self._pub, msg, self._sink)
@@ -544,7 +570,7 @@ class EscDriver(LifecycleNode):
             status_name("esc", settings.thruster_id),
             message,
             settings.thruster_id,
-            [("port", settings.port), *health.values],
+            [("port", settings.port), *health.values, *_sample_values(self._last_published)],
         )
 
 

@@ -1,8 +1,9 @@
 """Nominal-model node: telemetry -> residuals of the exported healthy-thruster NARX model.
 
 Subscribes to ``esc/telemetry``, feeds the model at its sample time (``core.nominal.residuals``),
-publishes ``Residual`` on ``fdd/residual`` and a status on ``/diagnostics``. A missing, corrupt
-or mismatched model stops the node at start with a message naming the file and what is wrong.
+publishes ``Residual`` on ``fdd/residual`` and a status on ``/diagnostics`` (rates, step times,
+the RMS of the period's OK residuals). A missing, corrupt or mismatched model stops the node at
+start with a message naming the file and what is wrong.
 Setting the ``model_dir`` parameter at runtime loads a newly exported model without a restart;
 a model that fails the checks is refused (the parameter change fails with the reason) and the
 old one keeps running. The other parameters are read at start only (a change is refused).
@@ -142,6 +143,11 @@ class NominalModelNode(Node):
         self.create_timer(self._diag_period_s, self._publish_diagnostics)
         self._published = 0
         self._window_published = 0
+        # Of the window's OK residuals: count and sums of squares (rpm, A), for the RMS in the
+        # status, which a live view reads instead of the 50 Hz topic.
+        self._ok_residuals = 0
+        self._sq_rpm = 0.0
+        self._sq_current = 0.0
         self._last_reason = ""
         self._step_s: list[float] = []
         self._local_subscribers: list[Callable[[Residual], None]] = []
@@ -209,6 +215,10 @@ class NominalModelNode(Node):
         if out.reason:
             self._last_reason = out.reason
         res = residual_message(self._id, self._model.model_id, msg, out)
+        if res.flags == Residual.OK:
+            self._ok_residuals += 1
+            self._sq_rpm += res.residual_rpm * res.residual_rpm
+            self._sq_current += res.residual_current_a * res.residual_current_a
         for callback in self._local_subscribers:
             callback(res)
         publish_recorded(self._pub, res, self._sink)
@@ -229,6 +239,10 @@ class NominalModelNode(Node):
         else:
             level, message = DiagnosticStatus.OK, f"residuals {rate:.1f} Hz"
         self._last_reason = ""
+        n_ok = self._ok_residuals
+        rms_rpm = f"{math.sqrt(self._sq_rpm / n_ok):.1f}" if n_ok else "-"
+        rms_a = f"{math.sqrt(self._sq_current / n_ok):.3f}" if n_ok else "-"
+        self._ok_residuals, self._sq_rpm, self._sq_current = 0, 0.0, 0.0
         publish_status(
             self,
             self._diag_pub,
@@ -244,6 +258,8 @@ class NominalModelNode(Node):
                 ("invalid_samples", str(self._stream.invalid)),
                 ("median_step_us", f"{median_us:.0f}"),
                 ("p99_step_us", f"{p99_us:.0f}"),
+                ("rms_residual_rpm", rms_rpm),
+                ("rms_residual_a", rms_a),
             ],
         )
 

@@ -1,41 +1,72 @@
 """Monitor node: a live table of every thruster's telemetry, residuals, diagnosis and health.
 
-Subscribes, per thruster, to ``esc/telemetry``, ``fdd/residual`` and ``fdd/diagnosis`` under
-``/thruster/<id>``, and to ``/diagnostics``; renders one row per thruster: telemetry rate,
-command, pwm, voltage, current, rpm, temperature, RMS residuals over the last 2 s, the diagnosis
+Reads the once-per-period summaries on ``/diagnostics`` rather than the 50 Hz topics (every
+subscriber of ``esc/telemetry`` or ``fdd/residual`` costs the vehicle's publisher): the
+``esc <id>`` status gives the telemetry rate, the newest published sample and the link's health,
+the ``nominal_model <id>`` status the RMS of the period's OK residuals. Only ``fdd/diagnosis``
+(a few Hz) is subscribed to, per thruster under ``/thruster/<id>``. One row per thruster:
+telemetry rate, command, pwm, voltage, current, rpm, temperature, RMS residuals, the diagnosis
 and the driver's health message. ``thruster-fdd up`` prints it every few seconds.
 """
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from dataclasses import dataclass, field
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from thruster_fdd_msgs.msg import Diagnosis, EscTelemetry, Residual
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from thruster_fdd_msgs.msg import Diagnosis
 
 from thruster_fdd.nodes.common import NO_SUB_EVENTS, status_name, subscribe_thrusters
 
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
-WINDOW_S = 2.0
+STATUS_STALE_S = 5.0
+"""A driver status older than this is shown as STALE: the row's values are its last words."""
+
+# (status key, column width) of the table's columns, in order.
+ESC_COLUMNS: tuple[tuple[str, int], ...] = (
+    ("telemetry_rate_hz", 7),
+    ("command", 6),
+    ("pwm_us", 6),
+    ("voltage_v", 6),
+    ("current_a", 6),
+    ("rpm", 7),
+    ("temperature_c", 6),
+)
+MODEL_COLUMNS: tuple[tuple[str, int], ...] = (("rms_residual_rpm", 7), ("rms_residual_a", 6))
 
 
 @dataclass
 class _Row:
-    """The latest state of one thruster (mutable: updated by callbacks)."""
+    """The latest state of one thruster (mutable: updated by callbacks).
 
-    stamps: deque[float] = field(default_factory=lambda: deque(maxlen=400))
-    residuals: deque[tuple[float, float, float]] = field(default_factory=lambda: deque(maxlen=400))
-    last: EscTelemetry | None = None
+    Attributes
+    ----------
+    esc, model : dict[str, str]
+        Key/values of the newest ``esc <id>`` and ``nominal_model <id>`` statuses.
+    esc_seen_s : float or None
+        When that ``esc`` status arrived (the node's clock), s; None before the first.
+    diagnosis : Diagnosis or None
+        The newest diagnosis.
+    health : str
+        The ``esc`` status' level and message.
+    """
+
+    esc: dict[str, str] = field(default_factory=dict)
+    esc_seen_s: float | None = None
+    model: dict[str, str] = field(default_factory=dict)
     diagnosis: Diagnosis | None = None
     health: str = "-"
 
 
+def _cells(values: dict[str, str], columns: tuple[tuple[str, int], ...]) -> str:
+    """The status values of ``columns``, right-aligned to their widths ("-" when absent)."""
+    return " ".join(f"{values.get(key, '-'):>{width}}" for key, width in columns)
+
+
 class Monitor(Node):
-    """Collects what ``thruster_ids`` publish (see module docstring); the node is ``name``."""
+    """Collects what ``thruster_ids`` report (see module docstring); the node is ``name``."""
 
     def __init__(self, thruster_ids: list[str], name: str) -> None:
         super().__init__(name)
@@ -46,11 +77,9 @@ class Monitor(Node):
         # The bag folder the recorder reports writing (its status' ``bag``), empty until then.
         self.recorder_bag = ""
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        sensor = qos_profile_sensor_data
-        ids = thruster_ids
-        subscribe_thrusters(self, ids, EscTelemetry, "esc/telemetry", self._on_telemetry, sensor)
-        subscribe_thrusters(self, ids, Residual, "fdd/residual", self._on_residual, sensor)
-        subscribe_thrusters(self, ids, Diagnosis, "fdd/diagnosis", self._on_diagnosis, reliable)
+        subscribe_thrusters(
+            self, thruster_ids, Diagnosis, "fdd/diagnosis", self._on_diagnosis, reliable
+        )
         self.create_subscription(
             DiagnosticArray,
             "/diagnostics",
@@ -62,47 +91,24 @@ class Monitor(Node):
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def _on_telemetry(self, tid: str, msg: EscTelemetry) -> None:
-        row = self.rows[tid]
-        row.last = msg
-        row.stamps.append(self._now_s())
-
     def _on_diagnosis(self, tid: str, msg: Diagnosis) -> None:
         self.rows[tid].diagnosis = msg
 
-    def _on_residual(self, tid: str, msg: Residual) -> None:
-        if msg.flags == Residual.OK:
-            self.rows[tid].residuals.append(
-                (self._now_s(), msg.residual_rpm, msg.residual_current_a)
-            )
-
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
             if status.name == status_name("recorder"):
-                for kv in status.values:
-                    if kv.key == "matched":
-                        self.recorder_matched = set(filter(None, kv.value.split(",")))
-                    elif kv.key == "bag":
-                        self.recorder_bag = kv.value
+                if "matched" in values:
+                    self.recorder_matched = set(filter(None, values["matched"].split(",")))
+                if "bag" in values:
+                    self.recorder_bag = values["bag"]
             for tid, row in self.rows.items():
                 if status.name == status_name("esc", tid):
+                    row.esc = values
+                    row.esc_seen_s = self._now_s()
                     row.health = f"{LEVELS.get(status.level[0], '?')}: {status.message}"
-
-    def rate_hz(self, tid: str) -> float:
-        """Telemetry messages per second received for ``tid`` over the last 2 s."""
-        now = self._now_s()
-        return sum(1 for s in self.rows[tid].stamps if now - s <= WINDOW_S) / WINDOW_S
-
-    def residual_rms(self, tid: str) -> tuple[float, float] | None:
-        """RMS of the rpm and current residuals (rpm, A) over the last 2 s; None if none."""
-        now = self._now_s()
-        recent = [(r, i) for s, r, i in self.rows[tid].residuals if now - s <= WINDOW_S]
-        if not recent:
-            return None
-        return (
-            math.sqrt(sum(r * r for r, _ in recent) / len(recent)),
-            math.sqrt(sum(i * i for _, i in recent) / len(recent)),
-        )
+                elif status.name == status_name("nominal_model", tid):
+                    row.model = values
 
     def table(self) -> str:
         """The live table, one line per thruster."""
@@ -110,13 +116,14 @@ class Monitor(Node):
             f"{'id':<4} {'rate Hz':>7} {'cmd':>6} {'pwm us':>6} {'V':>6} {'A':>6} "
             f"{'rpm':>7} {'temp C':>6} {'res rpm':>7} {'res A':>6}  {'diagnosis':<26} link"
         ]
+        now = self._now_s()
         for tid, row in self.rows.items():
-            m = row.last
-            if m is None:
-                lines.append(f"{tid:<4} {'-':>7}  (no telemetry yet)  {row.health}")
+            health = row.health
+            if row.esc_seen_s is not None and now - row.esc_seen_s > STATUS_STALE_S:
+                health = f"STALE: no driver status for {now - row.esc_seen_s:.0f} s; {health}"
+            if row.esc.get("rpm", "-") == "-":
+                lines.append(f"{tid:<4} {'-':>7}  (no telemetry yet)  {health}")
                 continue
-            rms = self.residual_rms(tid)
-            res = f"{rms[0]:7.0f} {rms[1]:6.2f}" if rms else f"{'-':>7} {'-':>6}"
             d = row.diagnosis
             if d is None:
                 diag = "-"
@@ -125,8 +132,7 @@ class Monitor(Node):
             else:
                 diag = f"{d.label} ({d.confidence:.2f})"
             lines.append(
-                f"{tid:<4} {self.rate_hz(tid):7.1f} {m.command:6.2f} {m.pwm_us:6d} "
-                f"{m.voltage_v:6.2f} {m.current_a:6.2f} {m.rpm:7.0f} {m.temperature_c:6.1f} "
-                f"{res}  {diag:<26} {row.health}"
+                f"{tid:<4} {_cells(row.esc, ESC_COLUMNS)} {_cells(row.model, MODEL_COLUMNS)}  "
+                f"{diag:<26} {health}"
             )
         return "\n".join(lines)
