@@ -1,6 +1,6 @@
 """Benchmark: end-to-end latency from telemetry received to diagnosis published, live.
 
-Runs ``thruster-fdd up`` (simulated thrusters, models, no recorder) and listens to every
+Runs ``thruster-fdd up`` (simulated thrusters, models, recording as by default) and listens to every
 thruster's ``fdd/diagnosis``. A diagnosis carries the header stamp of the telemetry sample that
 closed its window — the time the ESC driver received that frame — and DDS gives each message
 its source timestamp, the time it was published. So "published" is the chain driver ->
@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from typing import Any
@@ -54,10 +56,11 @@ def run_once(
                 env.get("PYTHONPATH", ""),
             ]
         )
+    record_dir = tempfile.mkdtemp(prefix="bench_latency_")
     up = subprocess.Popen(
         [sys.executable, "-m", "thruster_fdd_shore.cli", "up", "--thrusters", str(thrusters),
-         "--rate", str(rate), "--no-record", "--print-period", "1000", "--signal", "multilevel",
-         "--duration", str(warmup + seconds + 5)],
+         "--rate", str(rate), "--record-dir", record_dir, "--print-period", "1000",
+         "--signal", "multilevel", "--duration", str(warmup + seconds + 5)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         env=env,
@@ -101,6 +104,7 @@ def run_once(
     spin_until(executor, lambda: False, start + warmup + seconds)
     up.send_signal(signal.SIGINT)
     up.wait(timeout=60)
+    shutil.rmtree(record_dir, ignore_errors=True)
     executor.shutdown(timeout_sec=1.0)
     node.destroy_node()
     rclpy.try_shutdown(context=context)

@@ -8,7 +8,9 @@ brackets) of
 
 - the vehicle set: ESC drivers, models, health node and recorder — what runs on a vehicle;
 - the simulation harness: emulators and command players;
-- ``up`` itself (its live table).
+- ``up`` itself (its live table);
+- with ``--subscriber``, also a run with one external subscriber to every thruster's
+  telemetry (a controller's case: the vehicle's DDS writers then have a reader to serve).
 
 With ``--baseline SRC`` every configuration also runs from another source tree of the package
 (e.g. ``git archive <commit>`` of an earlier version, run through ``PYTHONPATH``), interleaved
@@ -17,13 +19,14 @@ with this one (A then B, ``--repeats`` times), so both see the same machine load
 Usage (after ``. scripts/bootstrap.sh``)::
 
     python bench/bench_up.py --thrusters 1 4 8 --rates 50 --seconds 15 --warmup 25 \
-        --baseline /tmp/base
+        --baseline /tmp/base --repeats 3 --subscriber
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import statistics
 import subprocess
@@ -39,10 +42,11 @@ from results_file import Run, add_results_option
 # Process part by what its command line runs, first match wins: (text, part, group). The
 # command players run in a container too: they must match before the vehicle's container.
 PARTS = (
+    ("bench_up.py --listen", "external subscriber", "external"),
     ("thruster_fdd_shore.nodes.command_player", "command players", "sim"),
     ("thruster_fdd.nodes.recorder", "recorder", "vehicle"),
     ("thruster_fdd.nodes.health", "health", "vehicle"),
-    ("thruster_fdd.nodes.container esc_driver", "drivers+models", "vehicle"),
+    ("thruster_fdd.nodes.container esc_driver", "vehicle container", "vehicle"),
     ("thruster_fdd.nodes.container", "models", "vehicle"),
     ("thruster_fdd.nodes.esc_driver", "drivers", "vehicle"),
     (" emulate ", "emulators", "sim"),
@@ -78,11 +82,37 @@ def _sample(pid: int) -> tuple[float, float, float, str, str] | None:
     return cpu_s, kb.get("Rss", 0) / 1024, kb.get("Pss", 0) / 1024, part, group
 
 
+def listen(thruster_ids: list[str]) -> None:
+    """An external subscriber to every thruster's ``esc/telemetry`` until SIGINT."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from thruster_fdd_msgs.msg import EscTelemetry
+
+    rclpy.init()
+    node = rclpy.create_node("bench_listener")
+    for tid in thruster_ids:
+        node.create_subscription(
+            EscTelemetry, f"/thruster/{tid}/esc/telemetry", lambda _: None, qos_profile_sensor_data
+        )
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        rclpy.try_shutdown()
+
+
 def run_once(
-    thrusters: int, rate: float, seconds: float, warmup: float, source: str | None
+    thrusters: int,
+    rate: float,
+    seconds: float,
+    warmup: float,
+    source: str | None,
+    subscriber: bool = False,
 ) -> dict[str, tuple[float, float, float, int]]:
     """Run one configuration; returns cores, RSS MB, PSS MB and process count by part and by
-    group (keys ``group:<name>``)."""
+    group (keys ``group:<name>``); ``subscriber``: with the external subscriber (a child of
+    this process, sampled as its own group)."""
     out_dir = tempfile.mkdtemp(prefix="bench_up_")
     env = dict(os.environ)
     if source:
@@ -101,14 +131,25 @@ def run_once(
         stderr=subprocess.DEVNULL,
         env=env,
     )  # fmt: skip
+    ids = [f"t{i}" for i in range(thrusters)]
+    listener = (
+        subprocess.Popen([sys.executable, __file__, "--listen", *ids], env=env)
+        if subscriber
+        else None
+    )
+    pids = [proc.pid, *([listener.pid] if listener else [])]
     time.sleep(warmup)
-    first = {p: s for p in _descendants(proc.pid) if (s := _sample(p))}
+    first = {p: s for root in pids for p in _descendants(root) if (s := _sample(p))}
     t0 = time.monotonic()
     time.sleep(seconds)
-    last = {p: s for p in _descendants(proc.pid) if (s := _sample(p))}
+    last = {p: s for root in pids for p in _descendants(root) if (s := _sample(p))}
     wall = time.monotonic() - t0
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=60)
+    if listener is not None:
+        listener.send_signal(signal.SIGINT)
+        listener.wait(timeout=30)
+    shutil.rmtree(out_dir, ignore_errors=True)
     totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0.0, 0])
     for pid, (cpu_s, rss, pss, part, group) in last.items():
         cores = (cpu_s - first.get(pid, (cpu_s,))[0]) / wall
@@ -151,8 +192,17 @@ def main() -> None:
         "--baseline", metavar="SRC", help="source tree of the layout to compare with (A/B)"
     )
     parser.add_argument("--repeats", type=int, default=1, help="A/B pairs per configuration")
+    parser.add_argument(
+        "--subscriber",
+        action="store_true",
+        help="also run this version with one external subscriber to every telemetry topic",
+    )
+    parser.add_argument("--listen", nargs="+", metavar="ID", help=argparse.SUPPRESS)
     add_results_option(parser)
     args = parser.parse_args()
+    if args.listen:
+        listen(args.listen)
+        return
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     run = Run("bench_up")
     measured: dict[tuple[str, int, float], list[tuple[float, float, int]]] = defaultdict(list)
@@ -166,6 +216,10 @@ def main() -> None:
                 totals = run_once(n, rate, args.seconds, args.warmup, None)
                 report("this", n, rate, totals)
                 measured["this", n, rate].append(_vehicle(totals))
+                if args.subscriber:
+                    totals = run_once(n, rate, args.seconds, args.warmup, None, subscriber=True)
+                    report("this+sub", n, rate, totals)
+                    measured["this, one external subscriber", n, rate].append(_vehicle(totals))
     for (label, n, rate), runs in measured.items():
         run.add(
             f"vehicle set CPU, {n} thrusters x {rate:g} Hz ({label})", "cores",

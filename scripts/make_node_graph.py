@@ -24,8 +24,8 @@ ITEMS = [
     ("esc_driver", "esc_driver\n(lifecycle)", "node", "container"),
     ("nominal_model", "nominal_model\n(NARX)", "node", "container"),
     ("classifier", "classifier", "node", "container"),
-    ("health", "health", "node", ""),
-    ("recorder", "recorder", "node", ""),
+    ("health", "health", "node", "container"),
+    ("recorder", "recorder\n(writer thread)", "node", "container"),
     ("mission", "mission software /\nthrust allocator\n(or command_player)", "ext", ""),
     ("telemetry", "esc/telemetry", "topic", ""),
     ("command", "esc/command", "topic", ""),
@@ -66,8 +66,9 @@ def dot_source() -> str:
         '  node [fontname="Helvetica" fontsize=11]; edge [color="#555555" arrowsize=0.7];',
         '  labelloc=t; label="thruster_fdd on the vehicle: per thruster /thruster/<id>/...";',
         "  subgraph cluster_container {",
-        "    label=\"container (one process: every thruster's three nodes,\\n"
-        'telemetry -> residual -> diagnosis by direct calls)";',
+        "    label=\"container (one process: every thruster's three nodes, health and recorder;\\n"
+        'telemetry -> residual -> diagnosis -> health and every message -> recorder by direct '
+        'calls)";',
         '    style="rounded"; color="#3a6ea5"; fontsize=10;',
     ]
     for name, label, kind, cluster in ITEMS:
