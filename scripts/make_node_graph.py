@@ -67,7 +67,7 @@ def dot_source() -> str:
         '  labelloc=t; label="thruster_fdd on the vehicle: per thruster /thruster/<id>/...";',
         "  subgraph cluster_container {",
         "    label=\"container (one process: every thruster's three nodes, health and recorder;\\n"
-        'telemetry -> residual -> diagnosis -> health and every message -> recorder by direct '
+        "telemetry -> residual -> diagnosis -> health and every message -> recorder by direct "
         'calls)";',
         '    style="rounded"; color="#3a6ea5"; fontsize=10;',
     ]

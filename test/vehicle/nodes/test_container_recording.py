@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 from probe import Probe
 
-from thruster_fdd.core.traces.bag_writer import BATCH_S
 from thruster_fdd.core.traces.recording import read_recovered
 from thruster_fdd.lifetime import stop_children
 
@@ -124,7 +123,8 @@ def test_kill_9_loses_at_most_one_flush_and_nothing_subscribes_twice(tmp_path: P
     # Lost: what the external subscriber got after the last recorded message's write.
     lost_s = (killed_ns - recorded[-1][1]) * 1e-9
     print(f"kill -9: {len(recorded)} of {len(feed.residuals)} residuals readable, {lost_s:.2f} s")
-    assert lost_s <= FLUSH_S + BATCH_S + 0.3, f"lost the last {lost_s:.2f} s"
+    # One flush period, and scheduling slack on a loaded machine.
+    assert lost_s <= FLUSH_S + 0.25, f"lost the last {lost_s:.2f} s"
 
 
 def test_an_unwritable_folder_is_an_error_and_the_model_runs_on(tmp_path: Path) -> None:

@@ -3,22 +3,24 @@
 Discovers topics periodically (new ones are picked up as they appear), subscribes with
 ``raw=True`` and the QoS its publishers offer (reliable only when every publisher is;
 transient-local, deep, when every publisher is, so the history published before the recorder
-matched — the first residuals of a run — is recorded too, as rosbag2 does), and
-hands the bytes to ``core.traces.recording.McapRecorder``, which writes the bag folder
+matched — the first residuals of a run — is recorded too, as rosbag2 does), and hands the bytes
+to a ``core.traces.bag_writer.BagWriter``, whose thread writes the bag folder
 ``<output_dir>/<prefix>`` (``<prefix>_2``, ... when that folder exists: a recorder writes only
 into a folder it created) with its ``metadata.yaml``; the publishers' QoS profiles and type
-hashes go into the bag (``ros2 bag play`` offers the same QoS again). Its ``/diagnostics``
-status lists in ``matched`` the topics whose subscription has matched a publisher, published
-at once when that changes: ``up`` activates the drivers only when their telemetry is matched,
-so a bag holds every sample the live models used (docs/contracts.md). A topic first seen through
-its subscribers only (under ``up`` the drivers' publishers come at *configure*, after the nominal
-models subscribed) is subscribed at once with the fallback QoS (best effort, volatile), and its
-publishers' QoS and type hash are taken when they appear, as rosbag2's recorder adapts: looked
-up again at every discovery and before the topic's first message is written. A type whose
-definition
-nobody has is recorded with an empty definition. An unwritable folder or a full disk is reported on
-``/diagnostics`` as ERROR while the node (and the rest of the graph) keeps running. Stopped by
-Ctrl-C or by the death of the ``up`` that started it, it finishes the bag.
+hashes go into the bag (``ros2 bag play`` offers the same QoS again). Hosted in a container
+(``container --vehicle recorder``), it takes the topics of that process's nodes from their
+``record`` calls — the bytes they publish, and the commands the drivers take — and subscribes to
+none of them. Its ``/diagnostics`` status lists in ``matched`` the topics whose subscription has
+matched a publisher and the topics of its own process, published at once when that changes:
+``up`` activates the drivers only when their telemetry is listed, so a bag holds every sample
+the live models used (docs/contracts.md). A topic first seen through its subscribers only is
+subscribed at once with the fallback QoS (best effort, volatile), and its publishers' QoS and
+type hash are taken when they appear, as rosbag2's recorder adapts: looked up again at every
+discovery and before the topic's first message is written. A type whose definition nobody has
+is recorded with an empty definition. An unwritable folder or a full disk is reported on
+``/diagnostics`` as ERROR (``dropped`` counts what was lost) while the node, the rest of its
+process and the graph keep running; the writer tries again every second. Stopped by Ctrl-C or
+by the death of the ``up`` that started it, it finishes the bag.
 """
 
 from __future__ import annotations

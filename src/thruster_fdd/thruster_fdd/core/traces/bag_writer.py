@@ -3,11 +3,11 @@
 :class:`BagWriter` owns a :class:`core.traces.recording.McapRecorder` and the only thread that
 touches it. Publishers (the drivers' serial reader, the model stages, the executor) call
 :meth:`BagWriter.write` with the CDR bytes they publish: an append to a bounded queue, no I/O.
-The thread writes the queue out, flushes every ``flush_period_s`` (what a killed process can
-lose is the queue plus one flush period) and, when the disk fails (full, folder removed or
-unwritable), drops the file, counts what it cannot write as dropped, reports the error in
-:meth:`BagWriter.status` and tries again every ``retry_s`` (the bag's next file, or a bag folder
-when none could be made). No ROS here.
+The thread takes the queue every ``BATCH_S`` and flushes so that no message waits longer than
+``flush_period_s`` from its hand-over to the disk (what a killed process can lose) and, when
+the disk fails (full, folder removed or unwritable), drops the file, counts what it cannot
+write as dropped, reports the error in :meth:`BagWriter.status` and tries again every
+``retry_s`` (the bag's next file, or a bag folder when none could be made). No ROS here.
 """
 
 from __future__ import annotations
@@ -16,14 +16,14 @@ import errno
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from thruster_fdd.core.traces.recording import McapRecorder, RecordingPolicy
 
 BATCH_S = 0.1
-"""How often the writer thread takes the queue, s (at most the flush period)."""
+"""How often the writer thread takes the queue, s (at most half the flush period)."""
 
 MAX_BAG_SUFFIX = 1000
 """Most bag folders of one prefix: ``<prefix>``, ``<prefix>_2``, ... ``<prefix>_1000``."""
@@ -108,7 +108,12 @@ class BagWriter:
     ) -> None:
         self.output_dir = Path(output_dir)
         self._prefix = prefix
-        self._policy = policy
+        # The file is flushed a batch early, so that a message waits at most flush_period_s
+        # from its write() call to the disk: a kill -9 loses no more than that.
+        self._policy = replace(
+            policy, flush_period_s=max(policy.flush_period_s - BATCH_S, policy.flush_period_s / 2)
+        )
+        self._batch_s = min(BATCH_S, policy.flush_period_s / 2)
         self.metadata = metadata
         self._max_queued = max_queued
         self._retry_s = retry_s
@@ -174,7 +179,7 @@ class BagWriter:
         while True:
             with self._wake:
                 if not self._stopping:
-                    self._wake.wait(min(BATCH_S, self._policy.flush_period_s))
+                    self._wake.wait(self._batch_s)
                 stopping = self._stopping
             if self._recorder is None and time.monotonic() >= self._retry_at:
                 self._open()
