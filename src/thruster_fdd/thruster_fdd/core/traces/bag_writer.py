@@ -131,6 +131,8 @@ class BagWriter:
         self._error_reported = True
         self._bag_dir = ""
         self._files: tuple[str, ...] = ()
+        # The first attempt here: the bag folder (or why there is none) is known at once.
+        self._open()
         self._thread = threading.Thread(target=self._run, name="bag-writer", daemon=True)
         self._thread.start()
 
