@@ -14,12 +14,17 @@ spinning; otherwise a lifecycle manager drives it (``thruster-fdd up`` does).
 
 All drivers of a process share one reader thread (``core.bridge.ports``) that waits on every
 port at once, decodes, and hands the frames to the executor with ``create_task`` (the
-EventsExecutor has no guard conditions), so the executor never blocks on I/O.
+EventsExecutor has no guard conditions), so the executor never blocks on I/O. The same thread
+sends the command frames at ``command_rate_hz``, the drivers of one rate in one wake (a ROS
+timer per driver would wake the executor's timer thread and then the executor, once per driver
+and period); the command state it shares with the executor's ``esc/command`` callback is
+guarded by a lock.
 """
 
 from __future__ import annotations
 
 import queue
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -216,6 +221,8 @@ class EscDriver(LifecycleNode):
         self._active = False
         self._inbox: queue.SimpleQueue[_Received] = queue.SimpleQueue()
         self._drain_pending = False
+        # Guards the command state: the reader thread sends, the executor takes commands.
+        self._command_lock = threading.Lock()
         # What configure made, with how to destroy it: (destroy, entity).
         self._entities: list[tuple[Callable[[Any], Any], Any]] = []
         self._reset_state()
@@ -223,7 +230,7 @@ class EscDriver(LifecycleNode):
             self._autostart_timer = self.create_timer(0.0, self._autostart)
 
     def _reset_state(self) -> None:
-        # Command state (executor thread only); its intervals on the monotonic clock.
+        # Command state (under _command_lock); its intervals on the monotonic clock.
         settings = self._settings
         self._commands = CommandWatchdog(
             settings.command_timeout_s if settings else 0.5,
@@ -303,12 +310,10 @@ class EscDriver(LifecycleNode):
         self._pub = self.create_lifecycle_publisher(
             EscTelemetry, "esc/telemetry", qos_profile_sensor_data, event_callbacks=NO_PUB_EVENTS
         )
-        # Commands are sent only while active (on_activate starts the timer). Both timers run
-        # on the steady clock: a host clock stepped back must not stall commands or status.
+        # Commands are sent only while active (on_activate starts the ticks of the reader
+        # thread). The status timer runs on the steady clock, as the ticks do: a host clock
+        # stepped back must not stall commands or status.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._command_timer = self.create_timer(
-            1.0 / settings.command_rate_hz, self._send_command, autostart=False, clock=steady
-        )
         command_sub = self.create_subscription(
             ThrusterCommand,
             "esc/command",
@@ -322,7 +327,6 @@ class EscDriver(LifecycleNode):
         self._entities = [
             (self.destroy_lifecycle_publisher, self._pub),
             (self.destroy_subscription, command_sub),
-            (self.destroy_timer, self._command_timer),
             (self.destroy_timer, diag_timer),
         ]
         decoder: FrameDecoder | KissDecoder = (
@@ -341,16 +345,17 @@ class EscDriver(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._commands.restart()
-        self._command_timer.reset()
-        self._active = True
+        with self._command_lock:
+            self._commands.restart()
+            self._active = True
+        if self._link is not None and self._settings is not None:
+            shared_ports().start_ticks(
+                self._link, 1.0 / self._settings.command_rate_hz, self._send_command
+            )
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._active = False
-        self._command_timer.cancel()
-        self._commands.stop()
-        self._write_command(0.0)
+        self._stop_commands()
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -358,8 +363,7 @@ class EscDriver(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._active = False
-        self._write_command(0.0)
+        self._stop_commands()
         self._release()
         return TransitionCallbackReturn.SUCCESS
 
@@ -382,11 +386,20 @@ class EscDriver(LifecycleNode):
         Not the lifecycle shutdown transition: after Ctrl-C rclpy has already shut the context
         down, and a transition would fail publishing its event before reaching the port.
         """
-        self._active = False
-        self._write_command(0.0)
+        self._stop_commands()
         if self._link is not None:
             shared_ports().close(self._link)
             self._link = None
+
+    def _stop_commands(self) -> None:
+        """Stop the ticks and send neutral: under the lock, so no tick under way in the reader
+        thread can send a command after the neutral frame."""
+        if self._link is not None:
+            shared_ports().stop_ticks(self._link)
+        with self._command_lock:
+            self._active = False
+            self._commands.stop()
+            self._write_command(0.0)
 
     # ---- serial side (the shared reader thread) --------------------------------------------
 
@@ -506,15 +519,18 @@ class EscDriver(LifecycleNode):
             # Taken from DDS as a message: serialised again for the bag.
             self._sink(self._command_topic, ThrusterCommand, serialize_message(msg))
         try:
-            self._commands.command(msg.command)
+            with self._command_lock:
+                self._commands.command(msg.command)
         except ValueError as exc:
             self.get_logger().warning(f"refused command: {exc}", throttle_duration_sec=1.0)
 
+    # ---- commands (reader thread) ----------------------------------------------------------
+
     def _send_command(self) -> None:
-        settings = self._settings
-        if settings is None or not self._active:
-            return
-        self._write_command(self._commands.step())
+        with self._command_lock:
+            if self._settings is None or not self._active:
+                return
+            self._write_command(self._commands.step())
 
     def _write_command(self, command: float) -> None:
         if self._link is None or self._settings is None:

@@ -2,8 +2,10 @@
 
 With every driver of a vehicle in one process, a single thread waits on all ports at once
 (``selectors``), hands each chunk of bytes with its host arrival time to the port's ``on_data``
-callback, and re-opens a port that fails or vanishes. Writes (command frames) come from the
-caller's thread.
+callback, and re-opens a port that fails or vanishes. The same thread calls each port's
+periodic ``tick`` (a driver's command frames, ``start_ticks``) on a grid of whole periods of the
+monotonic clock, so ports with one period share one wake instead of one timer each. Other writes
+come from the caller's thread.
 
 Nothing here blocks its caller: ``open`` and ``close`` are carried out by the reader thread,
 which a self-pipe wakes.
@@ -23,6 +25,9 @@ import serial
 
 OnData = Callable[[bytes, int], None]
 """Called in the reader thread with the bytes read and their host arrival time (ns)."""
+
+OnTick = Callable[[], None]
+"""Called in the reader thread once per tick period (``SerialPorts.start_ticks``)."""
 
 READ_SIZE = 4096
 """Largest read of one port at once, bytes."""
@@ -58,6 +63,8 @@ class SerialLink:
     _was_open: bool = field(default=False, repr=False)
     _retry_at: float = field(default=0.0, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _tick: tuple[float, OnTick] | None = field(default=None, repr=False)
+    _tick_at: float = field(default=0.0, repr=False)
 
     @property
     def is_open(self) -> bool:
@@ -128,6 +135,30 @@ class SerialPorts:
                 self._to_close.append(link)
         self._wake()
 
+    def start_ticks(self, link: SerialLink, period_s: float, on_tick: OnTick) -> None:
+        """Call ``on_tick`` in the reader thread every ``period_s`` until ``stop_ticks``.
+
+        Ticks fall on whole multiples of ``period_s`` of the monotonic clock, so every port of
+        one period ticks in the same wake; a tick the thread is too late for is skipped, never
+        made up in a burst. They go on while the port is closed (a write then fails).
+
+        Raises
+        ------
+        ValueError
+            If ``period_s`` is not positive.
+        """
+        if not period_s > 0:
+            raise ValueError(f"{link.device}: tick period must be positive")
+        with self._lock:
+            link._tick = (period_s, on_tick)
+            link._tick_at = _next_multiple(time.monotonic(), period_s)
+        self._wake()
+
+    def stop_ticks(self, link: SerialLink) -> None:
+        """Stop ``link``'s ticks; a tick under way in the reader thread still ends."""
+        with self._lock:
+            link._tick = None
+
     def _wake(self) -> None:
         with contextlib.suppress(BlockingIOError):
             os.write(self._wake_w, b"\0")
@@ -143,14 +174,25 @@ class SerialPorts:
             for link in links:
                 if link._port is None and now >= link._retry_at:
                     self._try_open(link, now)
-            retries = [link._retry_at for link in links if link._port is None]
-            timeout = max(0.0, min(retries) - time.monotonic()) if retries else None
+            self._run_ticks(links, time.monotonic())
+            due = [link._retry_at for link in links if link._port is None]
+            due += [link._tick_at for link in links if link._tick is not None]
+            timeout = max(0.0, min(due) - time.monotonic()) if due else None
             for key, _ in self._selector.select(timeout):
                 if key.data is None:
                     with contextlib.suppress(BlockingIOError):
                         os.read(self._wake_r, READ_SIZE)
                 else:
                     self._read(key.data, key.fd)
+
+    def _run_ticks(self, links: list[SerialLink], now: float) -> None:
+        for link in links:
+            with self._lock:
+                tick = link._tick
+                if tick is None or now < link._tick_at:
+                    continue
+                link._tick_at = _next_multiple(now, tick[0])
+            tick[1]()
 
     def _try_open(self, link: SerialLink, now: float) -> None:
         try:
@@ -191,3 +233,8 @@ class SerialPorts:
             port.close()
         link.error = f"{link.device}: {reason}"
         link._retry_at = time.monotonic() + link.reconnect_s
+
+
+def _next_multiple(now: float, period_s: float) -> float:
+    """The first whole multiple of ``period_s`` after ``now`` (both s)."""
+    return (now // period_s + 1.0) * period_s
