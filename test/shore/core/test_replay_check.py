@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import pytest
 
-from thruster_fdd.core.nominal.residuals import OK, STATE_RESET, WARMING_UP
+from thruster_fdd.core.nominal.residuals import INPUT_INVALID, OK, STATE_RESET, ResidualStream
 from thruster_fdd_shore.core.traces.replay_check import (
     BEFORE_RECORDING,
     MISSING_SAMPLE,
@@ -112,20 +113,47 @@ def test_a_live_decision_the_replay_does_not_make_disagrees() -> None:
     assert result.agreement == 39 / 40
 
 
-def _stream(n: int, resets: tuple[int, ...] = ()) -> tuple[list[tuple[int, int]], list[int]]:
-    """Residuals (stamp ns, flags) of a live chain started at sample 0 and reset at
-    ``resets``, and the indices it decided at (``TIMING``)."""
+class Lookback3:
+    """A nominal model that predicts once it has seen ``TIMING.warmup_samples`` samples."""
+
+    sample_time_s = 0.1
+
+    def __init__(self) -> None:
+        self.seen = 0
+
+    def reset(self) -> None:
+        self.seen = 0
+
+    def step(
+        self, command: float, voltage: float, rpm: float, current: float
+    ) -> tuple[float, float] | None:
+        self.seen += 1
+        return (rpm, current) if self.seen > TIMING.warmup_samples else None
+
+
+def _stream(
+    n: int, resets: tuple[int, ...] = (), refused: tuple[int, ...] = ()
+) -> tuple[list[tuple[int, int]], list[int]]:
+    """Residuals (stamp ns, flags) of a live chain started at sample 0, its telemetry going
+    back in sequence at ``resets`` and refused at ``refused``, and the indices it decided at
+    (``TIMING``). The flags are those ``ResidualStream`` gives."""
+    stream = ResidualStream(Lookback3())
     residuals, decided = [], []
-    since_reset = count = since = 0
+    count = since = 0
     for k in range(n):
-        if k in resets:
-            since_reset = count = 0
-        flags = WARMING_UP if since_reset < TIMING.warmup_samples else OK
-        if k in resets:
-            flags |= STATE_RESET
-        since_reset += 1
-        residuals.append((T0_NS + k * 100_000_000, flags))
-        if flags:
+        out = stream.push(
+            k * TIMING.period_s,
+            0.3,
+            15.0,
+            1000.0,
+            math.nan if k in refused else 2.0,
+            sequence=-k if k in resets else k,
+        )
+        assert out is not None
+        residuals.append((T0_NS + k * 100_000_000, out.flags))
+        if not out.valid:
+            if out.flags & (STATE_RESET | INPUT_INVALID):
+                count = 0
             continue
         count += 1
         since += 1
@@ -137,17 +165,30 @@ def _stream(n: int, resets: tuple[int, ...] = ()) -> tuple[list[tuple[int, int]]
     return residuals, decided
 
 
-def _recorded_bag(n: int, held: range, resets: tuple[int, ...] = ()) -> ThrusterBag:
-    residuals, decided = _stream(n, resets)
+def _recorded_bag(
+    n: int,
+    held: range,
+    resets: tuple[int, ...] = (),
+    refused: tuple[int, ...] = (),
+    residuals_from: int = 0,
+) -> ThrusterBag:
+    """A live recording of ``_stream`` holding the telemetry of ``held`` and the residuals
+    and decisions from ``residuals_from`` on (0: the residuals' transient-local history
+    reaches back to the chain's start)."""
+    residuals, decided = _stream(n, resets, refused)
     stamps = tuple(residuals[k][0] for k in held)
     return ThrusterBag(
         "t0",
         stamps,
         tuple(b"" for _ in stamps),
-        tuple(WindowDecision(residuals[k][0], "nominal_15v", NOMINAL) for k in decided),
+        tuple(
+            WindowDecision(residuals[k][0], "nominal_15v", NOMINAL)
+            for k in decided
+            if k >= residuals_from
+        ),
         (),
         True,
-        tuple(residuals),
+        tuple(residuals[residuals_from:]),
     )
 
 
@@ -202,3 +243,35 @@ def test_a_parallel_model_is_reproduced_only_from_a_reset(reset: int | None) -> 
     else:
         assert bag.stamps_ns[0] == T0_NS + reset * 100_000_000
         assert bag.comparable.first_ns == T0_NS + (reset + 3 + 7) * 100_000_000
+
+
+def test_a_bag_begun_at_the_warm_up_after_a_refused_sample_compares_no_labels() -> None:
+    # The live decision layer has run since sample 0; the model reset at the refused sample 20
+    # and warms up again from 21, where the recording begins.
+    bag = align_bag(_recorded_bag(60, range(21, 60), refused=(20,), residuals_from=21), TIMING)
+    assert bag.comparable is not None
+    assert bag.comparable.first_ns is not None
+    assert not bag.comparable.labels
+
+
+def test_a_bag_begun_inside_the_first_warm_up_compares_no_labels() -> None:
+    # The live chain decided at sample 10 on windows since sample 0; from sample 2 a fresh
+    # chain meets the live windows at 12, but the evidence of the decision at 10 is missing.
+    bag = align_bag(_recorded_bag(60, range(2, 60), residuals_from=2), TIMING)
+    assert bag.comparable is not None
+    assert bag.comparable.first_ns == T0_NS + 12 * 100_000_000
+    assert not bag.comparable.labels
+
+
+def test_a_bag_begun_at_the_chain_start_without_history_compares_the_labels() -> None:
+    bag = align_bag(_recorded_bag(60, range(60), refused=(20,), residuals_from=0), TIMING)
+    assert bag.comparable is not None
+    assert bag.comparable.labels
+
+
+def test_a_parallel_model_is_not_reproduced_from_inside_a_warm_up_after_a_reset() -> None:
+    # Its lookback at sample 31 holds sample 30; a fresh model from 31 is not the live one.
+    timing = replace(TIMING, parallel=True)
+    bag = align_bag(_recorded_bag(60, range(31, 60), resets=(30,), residuals_from=31), timing)
+    assert bag.comparable is not None
+    assert bag.comparable.first_ns is None

@@ -105,7 +105,41 @@ def test_invalid_input_is_flagged_never_nan(field: str, value: float, words: str
     for number in (bad.measured_rpm, bad.predicted_rpm, bad.residual_rpm, bad.residual_current_a):
         assert math.isfinite(number)
     assert model.previous is None, "the model state must be reset after a bad sample"
-    assert _push(stream, 0.3).flags == WARMING_UP
+    assert _push(stream, 0.3).flags == STATE_RESET | WARMING_UP
+
+
+class Lookback3(Persistence):
+    """Predicts (the previous sample's outputs) once it has seen 3 samples since a reset."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen = 0
+
+    def reset(self) -> None:
+        super().reset()
+        self.seen = 0
+
+    def step(
+        self, command: float, voltage: float, rpm: float, current: float
+    ) -> tuple[float, float] | None:
+        self.seen += 1
+        prediction = super().step(command, voltage, rpm, current)
+        return prediction if self.seen > 3 else None
+
+
+@pytest.mark.parametrize(
+    ("reset", "bad"),
+    [("time gap", {}), ("refused sample", {"rpm": math.nan})],
+)
+def test_only_the_first_warm_up_lacks_state_reset(reset: str, bad: dict[str, float]) -> None:
+    # A consumer that sees WARMING_UP without STATE_RESET knows no residual came before.
+    stream = ResidualStream(Lookback3())
+    first = [_push(stream, 0.1 * k).flags for k in range(5)]
+    assert first == [WARMING_UP] * 3 + [OK] * 2
+    if bad:
+        assert _push(stream, 0.5, **bad).flags == INPUT_INVALID
+    after = [_push(stream, 2.0 + 0.1 * k).flags for k in range(5)]
+    assert after == [STATE_RESET | WARMING_UP] * 3 + [OK] * 2, reset
 
 
 def test_rejects_a_gap_threshold_below_one_period() -> None:

@@ -3,7 +3,10 @@
 :class:`ResidualStream` is what the ``nominal_model`` node (and offline diagnosis) runs per
 telemetry sample: it feeds the model at the model's own sample time (telemetry faster than that
 is decimated), resets the model's lookback on a gap in time or sequence, refuses non-finite or
-out-of-range samples, and flags every output so that no NaN is ever produced.
+out-of-range samples, and flags every output so that no NaN is ever produced. Every residual of a
+warm-up that follows a reset (a gap, a refused sample, a diverged prediction) is flagged
+``STATE_RESET`` as well as ``WARMING_UP``: ``WARMING_UP`` alone is only the model's first warm-up,
+so a consumer that sees it knows that nothing came before.
 """
 
 from __future__ import annotations
@@ -163,14 +166,17 @@ class ResidualStream:
         self._limits = limits or InputLimits()
         self._last_t: float | None = None
         self._last_seq: int | None = None
+        self._after_reset = False
         self.resets = 0
         self.invalid = 0
 
     def reset(self) -> None:
-        """Forget the past: the model's lookback fills again from the next sample."""
+        """Forget the past: the model's lookback fills again from the next sample, and the
+        residuals of that warm-up are flagged ``STATE_RESET``."""
         self._model.reset()
         self._last_t = None
         self._last_seq = None
+        self._after_reset = True
 
     def push(
         self,
@@ -223,7 +229,10 @@ class ResidualStream:
         self._last_seq = sequence
         prediction = self._model.step(command, voltage, rpm, current)
         if prediction is None:
+            if self._after_reset:
+                flags |= STATE_RESET
             return ResidualSample(t_s, rpm, 0.0, 0.0, current, 0.0, 0.0, flags | WARMING_UP, reason)
+        self._after_reset = False
         pred_rpm, pred_current = prediction
         if not (math.isfinite(pred_rpm) and math.isfinite(pred_current)):
             self.reset()

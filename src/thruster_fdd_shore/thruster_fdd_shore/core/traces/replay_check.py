@@ -20,7 +20,8 @@ recording"):
 - its *label* (with confidence, fault evidence and ``evidence_pending``) depends on every
   informative window since the classifier's decision layer started. It is comparable only when
   the recording holds that start too: the thruster's first recorded residual is the nominal
-  model's first (flagged ``WARMING_UP``, not ``STATE_RESET``), its telemetry is recorded, and
+  model's first (flagged ``WARMING_UP``, not ``STATE_RESET``, which every warm-up after a
+  reset carries, and followed by the rest of that warm-up), its telemetry is recorded, and
   no ``stale`` diagnosis (which restarts the live decision layer) came since.
 """
 
@@ -391,13 +392,26 @@ def _first_decision(
     return None
 
 
-def _restarts(flags: list[int], k: int) -> bool:
-    """Whether the live nominal model started from a reset state at residual ``k``: flagged
-    STATE_RESET, the first of a warm-up after a usable or refused residual, or the model's
-    first residual (WARMING_UP without STATE_RESET and nothing recorded before)."""
+def _restarts(flags: list[int], k: int, warmup_samples: int) -> bool:
+    """Whether the live nominal model started from an empty lookback at residual ``k``.
+
+    It did when ``k`` is a warm-up residual after a usable or refused one, the first
+    STATE_RESET of a warm-up (a reset during the model's first warm-up), or when exactly
+    ``warmup_samples`` warm-up residuals from ``k`` on precede a prediction: every fed sample
+    gives one residual, so the lookback was empty just before ``k``. The last rule places a
+    reset within a warm-up that follows another (every residual of it is flagged
+    STATE_RESET) and tells a recording's first residual from one in the middle of a warm-up.
+    """
     if not flags[k] & WARMING_UP:
         return False
-    return bool(flags[k] & STATE_RESET) or k == 0 or not flags[k - 1] & WARMING_UP
+    if k > 0 and (not flags[k - 1] & WARMING_UP or flags[k] & ~flags[k - 1] & STATE_RESET):
+        return True
+    run = flags[k : k + warmup_samples + 1]
+    return (
+        len(run) == warmup_samples + 1
+        and all(f & WARMING_UP for f in run[:-1])
+        and not run[-1] & (WARMING_UP | INPUT_INVALID)
+    )
 
 
 def align_bag(bag: ThrusterBag, timing: ChainTiming) -> ThrusterBag:
@@ -423,7 +437,7 @@ def align_bag(bag: ThrusterBag, timing: ChainTiming) -> ThrusterBag:
     decided_ns = {d.stamp_ns for d in decided}
     start = first = None
     for a in range(begin, end):
-        if timing.parallel and not _restarts(flags, a):
+        if timing.parallel and not _restarts(flags, a, timing.warmup_samples):
             continue
         # A fresh model predicts from warmup_samples on; from there on (and from a restart
         # in parallel mode) its residuals and their flags are the live ones.
@@ -439,7 +453,14 @@ def align_bag(bag: ThrusterBag, timing: ChainTiming) -> ThrusterBag:
         BEFORE_RECORDING: sum(1 for d in decided if first is None or d.stamp_ns < first),
         MISSING_SAMPLE: sum(1 for d in decided if first is not None and d.stamp_ns > last_ns),
     }
-    labels = start == 0 and flags[0] & (WARMING_UP | STATE_RESET) == WARMING_UP
+    # The decision layer started at the model's first residual, its first warm-up: flagged
+    # WARMING_UP without STATE_RESET (every warm-up after a reset carries STATE_RESET), and
+    # its first residual, not one in the middle of that warm-up.
+    labels = (
+        start == 0
+        and flags[0] & (WARMING_UP | STATE_RESET) == WARMING_UP
+        and _restarts(flags, 0, timing.warmup_samples)
+    )
     until = next(
         (d.stamp_ns for d in bag.recorded if d.reason == "stale" and first is not None
          and d.stamp_ns > first),
