@@ -15,8 +15,8 @@ superfluous), the parameter errors and the gap before and after; it prints one M
 per family: exact naming, parameter error, gap shrink, model error (against the unit's
 noise-free response), and the false-positive rate of the null traces with a one-sided 95 %
 upper bound. Runs go to ``--workers`` processes, one run each. ``--json`` keeps each run's
-row, with how the search got there: the rivals of each choice, the named effects a later
-choice replaced, the base changes made and the pairs of effects taken together. ``--out DIR``
+row, with how the search got there: the moves within the score's uncertainty of each choice,
+the base changes made and whether a structured rest was left. ``--out DIR``
 writes the tables as ``DIR/table.md`` and every run as ``DIR/runs.jsonl`` (with ``--table``:
 the table of that file only).
 
@@ -57,10 +57,14 @@ from thruster_fdd_shore.core.discrepancy.cases import (
     make_case,
     make_mismatch_case,
 )
+from thruster_fdd_shore.core.discrepancy.engine import run_workflow
 from thruster_fdd_shore.core.discrepancy.fit import without_effects
 from thruster_fdd_shore.core.discrepancy.measure import CHANNELS, Measured, simulate_model
-from thruster_fdd_shore.core.discrepancy.report import FRICTION_UNITS, friction_currents
-from thruster_fdd_shore.core.discrepancy.search import SAME_CHOICE, run_workflow
+from thruster_fdd_shore.core.discrepancy.report import (
+    FRICTION_UNITS,
+    friction_currents,
+    report_json,
+)
 from thruster_fdd_shore.core.sim.config import Measurement, SimConfig
 from thruster_fdd_shore.core.sim.physics import simulate
 
@@ -147,7 +151,7 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
     case = make_job_case(family, hidden, superfluous, seed, duration)
     t0 = time.perf_counter()
     result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
-    rep = result.report()
+    rep = report_json(result, data, simulate_model(result.final.config, data))
     model_error = [_model_error(f.config, case.clean, data) for f in (result.start, result.final)]
     errors = {}
     for name, params in case.hidden.items():
@@ -178,17 +182,18 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "gap_after": rep["gap_after"],
         "wall_s": time.perf_counter() - t0,
         **_visibility_columns(_visibility(case, data, seed)),
-        "rivals": [[rnd.chosen, name] for rnd in result.rounds for name, *_ in rnd.rivals],
-        "replaced": [list(pair) for pair in result.replaced],
-        "base_changes": list(result.base_changes),
-        "pairs": [[p.lead, p.partner] for rnd in result.rounds for p in rnd.pairs if p.accepted],
+        "rivals": [
+            [a["taken"], name] for a in rep["alternatives"] for name in a["within_uncertainty"]
+        ],
+        "base_changes": [c["change"] for c in rep["base_changes"]],
+        "structured_rest": rep["rest"]["structured"],
     }
 
 
 def _undecided(row: dict) -> bool:
     """Whether a hidden effect the run did not name was a rival of what a round took."""
     unnamed = set(row["hidden"]) - set(row["named"])
-    return any(rival in unnamed for _chosen, rival in row.get("rivals", []))
+    return any(rival.removeprefix("add ") in unnamed for _taken, rival in row.get("rivals", []))
 
 
 def upper_bound(failures: int, runs: int, confidence: float = 0.95) -> float:
@@ -250,9 +255,9 @@ def _summary(rows: list[dict]) -> list[str]:
         misses = [r for r in both if not exact(r)]
         undecided = [r for r in misses if _undecided(r)]
         out.append(
-            f"Misses where a hidden effect the search did not name fitted as well as what it "
-            f"took in a round (within {100 * SAME_CHOICE:g} %; report.md: choices the data do "
-            f"not decide): {len(undecided)}/{len(misses)}."
+            f"Misses where a hidden effect the search did not name was within the score's "
+            f"uncertainty of what a step took (report.md: choices the data do not decide): "
+            f"{len(undecided)}/{len(misses)}."
         )
         cur = [e for r in both for e in r.get("friction_current_error", {}).values()]
         torque = [e for r in both for n, e in r["param_error"].items() if n in FRICTION_UNITS]
@@ -268,8 +273,12 @@ def _summary(rows: list[dict]) -> list[str]:
         out.append(
             f"False-positive rate (null traces naming anything): {fp}/{len(nulls)} = "
             f"{100 * fp / len(nulls):.1f} % (one-sided 95 % upper bound "
-            f"{100 * upper_bound(fp, len(nulls)):.1f} %)."
+            f"{100 * upper_bound(fp, len(nulls)):.1f} %); verdict unexplained "
+            f"{sum(r['verdict'] == 'unexplained' for r in nulls)}/{len(nulls)}."
         )
+    if any("structured_rest" in r for r in rows):
+        rest = sum(bool(r.get("structured_rest")) for r in rows)
+        out.append(f"Runs leaving a structured rest: {rest}/{len(rows)}.")
     if extra:
         found = sum(sorted(r.get("named_superfluous", [])) == r["superfluous"] for r in extra)
         shrank = sum(r["score_after"] < r["score_before"] for r in extra)

@@ -12,19 +12,16 @@ from thruster_fdd_shore.commands.common import EXIT_OK, check_output
 NAME = "discrepancy"
 HELP = "name the physical effects the simulator misses against a measured trace"
 DESCRIPTION = (
-    "Calibrate a simulator configuration to a measured trace (free-run simulation error; base "
-    "parameters within a factor 2 of the start, plus the structural terms the start lacks: drive "
-    "saturation, winding loss, idle current growing with speed), locate where it disagrees, "
-    "name the missing effects of the effect vocabulary (dead_time, deadband, esc_lag, "
-    "slew_rate_limit, coulomb_friction, viscous_friction, voltage_sag, current_limit), try base "
-    "changes beside them (a base parameter past its bound, a second ESC stage, the other "
-    "braking law, no drive saturation, the start's winding loss re-fitted), report effects of the "
-    "start the thruster lacks "
-    "(superfluous), and write DIR/report.json, DIR/model.yaml, DIR/report.md, "
-    "DIR/details.json and PNG plots. Verdict: "
-    "effects_found, nothing_missing, or unexplained (the residual is still structured; "
-    "report.md says where). Exit 2 with one line on bad input. Method and measured accuracy: "
-    "docs/discrepancy.md."
+    "Calibrate a simulator configuration to a measured trace (free-run simulation error), then "
+    "select, by blocked cross-validation, the moves that explain what it misses: effects of the "
+    "vocabulary added (dead_time, deadband, esc_lag, slew_rate_limit, coulomb_friction, "
+    "viscous_friction, voltage_sag, current_limit), effects of the start removed (superfluous) "
+    "and changes of its base (bounds widened, a second ESC stage, the other braking law, drive "
+    "losses). A move is taken only when its held-out gain exceeds its uncertainty, where the "
+    "effect acts, and beyond a generic smooth correction; what that correction still explains "
+    "is reported as a structured rest. Writes DIR/report.json, DIR/model.yaml, DIR/report.md, "
+    "DIR/details.json and PNG plots. Verdict: effects_found, nothing_missing, or unexplained. "
+    "Exit 2 with one line on bad input. Method and measured accuracy: docs/discrepancy.md."
 )
 
 
@@ -44,14 +41,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="report folder: new, empty or an earlier report's (replaced whole, "
                    "only once every file is written)")  # fmt: skip
     p.add_argument("--workers", type=int, default=2,
-                   help="processes for candidate re-fits (1-64)")  # fmt: skip
+                   help="processes for the moves' re-fits (1-64; default 2)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the workflow and write the report."""
-    from thruster_fdd_shore.core.discrepancy.report import check_out_dir, write_report
-    from thruster_fdd_shore.core.discrepancy.search import STRUCTURED, run_workflow
+    from thruster_fdd_shore.core.discrepancy.engine import run_workflow
+    from thruster_fdd_shore.core.discrepancy.report import check_out_dir, summary, write_report
     from thruster_fdd_shore.core.sim.config import load_config
     from thruster_fdd_shore.core.traces.files import read_traces
 
@@ -71,15 +68,6 @@ def run(args: argparse.Namespace) -> int:
     )
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    write_report(result, data, args.out)
-    named = ", ".join(result.added) or "none"
-    extra = ", ".join(m["name"] for m in result.report()["superfluous_effects"]) or "none"
-    undecided = [f"{n} as good as {rnd.chosen}" for rnd in result.rounds for n, *_ in rnd.rivals]
-    also = f"; undecided: {'; '.join(undecided)}" if undecided else ""
-    if result.base_changes:
-        also += f"; base changed: {'; '.join(result.base_changes)}"
-    score = result.final.gap.score
-    if score > STRUCTURED:
-        also += f"; a structured rest is left (held-out score {score:.1f} > {STRUCTURED:g})"
-    print(f"{result.verdict}: missing {named}; superfluous {extra}{also}; report in {args.out}")
+    report = write_report(result, data, args.out)
+    print(summary(report, args.out))
     return EXIT_OK

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from thruster_fdd.core.traces.data import Trace
-from thruster_fdd_shore.core.discrepancy.search import start_config
+from thruster_fdd_shore.core.discrepancy.moves import start_config
 from thruster_fdd_shore.core.sim.config import (
     Measurement,
     SimConfig,

@@ -1,0 +1,370 @@
+"""The selection engine of the discrepancy workflow (docs/discrepancy.md, "Method").
+
+One score, one acceptance rule, one loop:
+
+- **Score**: blocked cross-validation. Each model is calibrated on every fold of
+  ``Policy.folds`` (two of ten blocks held out); its held-out residuals, in noise standard
+  deviations, give a Gaussian log-likelihood per sample, each channel weighted by its
+  effective sample share ``(1 - rho) / (1 + rho)`` (``rho``: lag-1 autocorrelation of the
+  step's model's residual). A move's gain is the sum of the differences.
+- **Acceptance**: the gain must exceed ``Policy.min_gain`` and its own uncertainty (the noise's:
+  a sample whose residuals differ by ``delta`` adds ``w * delta**2`` to the variance) times the
+  normal quantile of ``Policy.alpha`` shared by the step's moves (Bonferroni). The same test
+  applies where an effect acts (its signature must be in the data) and against the generic
+  correction (``correction``): a move must gain beyond it, or the correction must not be
+  clearly better than the move. Gains are counted against a control, the model re-fitted as
+  the moves are, so no move is credited with further fitting.
+- **Loop**: forward, of the accepted moves within the score's uncertainty of the largest gain,
+  the one adding the fewest parameters (the one-standard-error rule); after every addition a
+  backward step
+  removes what no longer earns its place; a start effect only when its claimed values could
+  be seen and the data contradict them, and its fitted values could not be seen (a limit that
+  never binds stays, and so does an effect the thruster has with another value); at the end a
+  removed start effect the final model does not contradict is restored.
+
+A block bootstrap of the recorded gains gives each choice its selection frequency and the
+weights of the moves within the score's uncertainty of it; the fold fits give every named
+parameter a jackknife spread.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field, replace
+from multiprocessing import get_context
+
+import numpy as np
+from tqdm import tqdm
+
+from thruster_fdd.core.traces.data import Trace
+from thruster_fdd_shore.core.discrepancy.fit import Fit, _get, calibrate
+from thruster_fdd_shore.core.discrepancy.measure import N_BLOCKS, Measured, prepare_measured
+from thruster_fdd_shore.core.discrepancy.moves import Move, available, start_config
+from thruster_fdd_shore.core.discrepancy.score import (
+    DEFAULT_POLICY,
+    Policy,
+    Scored,
+    evaluate,
+    excess,
+    gain_of,
+    rest_of,
+    visible,
+    weights,
+)
+from thruster_fdd_shore.core.sim.config import SimConfig
+
+VERDICTS = ("effects_found", "nothing_missing", "unexplained")
+"""Values of ``report.json``'s ``verdict`` (docs/contracts.md)."""
+
+
+@dataclass(frozen=True)
+class Judged:
+    """One move of one step, judged against the step's model.
+
+    ``gain``/``se``: the held-out gain and its standard error (ESS-weighted nats);
+    ``where``: gain where the move acts (``None`` for a removal); ``beyond``: gain over
+    the model plus the generic correction, both corrected; ``deficit``: the corrected model's
+    lead over the move; ``accepted``: every test passed. ``d``: the per-block gains
+    (plain, where, beyond, deficit), shape (4, 2, N_BLOCKS) (``gain_of``), for the bootstrap.
+    """
+
+    move: str
+    gain: float
+    se: float
+    significant: bool
+    where: float | None
+    beyond: float
+    deficit: float
+    accepted: bool
+    d: np.ndarray = field(repr=False)
+
+
+def judge(move: Move, cand: Scored, parent: Scored, data: Measured, w, policy, moves) -> Judged:
+    """Apply the acceptance rule to ``cand`` (``parent`` with ``move``; ``moves`` share the
+    step's ``alpha``)."""
+    where = gain_of(cand.r, parent.r, data, w, cand.active) if cand.active is not None else None
+    stack = np.stack(
+        [
+            gain_of(cand.r, parent.r, data, w),
+            gain_of(cand.r, parent.r, data, w) if where is None else where,
+            gain_of(cand.r_g, parent.r_g, data, w),
+            gain_of(parent.r_g, cand.r, data, w),
+        ]
+    )
+    gain, se, sig, gain_where, beyond, deficit, accepted = _verdict(stack, policy, moves)
+    return Judged(
+        move.label, gain, se, sig, gain_where if where is not None else None, beyond, deficit,
+        accepted, stack,
+    )  # fmt: skip
+
+
+def _verdict(d: np.ndarray, policy: Policy, moves: int) -> tuple:
+    """(gain, se, significant, where, beyond, deficit, accepted) of the gains ``d`` (``judge``):
+    significant, significant where the move acts and mostly there, and either significant
+    beyond the generic correction or not clearly behind it."""
+    gain, se, sig = policy.test(d[0], moves)
+    where, _, sig_where = policy.test(d[1], moves)
+    sig_where = sig_where and where >= policy.own_share * gain
+    beyond, _, sig_beyond = policy.test(d[2], moves)
+    deficit, _, sig_deficit = policy.test(d[3], moves)
+    accepted = sig and sig_where and (sig_beyond or not sig_deficit)
+    return gain, se, sig, where, beyond, deficit, accepted
+
+
+@dataclass(frozen=True)
+class Step:
+    """One forward or backward step: the moves judged, the one taken (None: none), and the
+    alternatives within the score's uncertainty of it with their bootstrap weights."""
+
+    kind: str
+    judged: tuple[Judged, ...]
+    taken: str | None
+    frequency: float = 1.0
+    alternatives: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Result:
+    """Outcome of the search: the verdict, the calibrated start and final model (on the
+    default held-out blocks), the final model's fold fits, its spec, the steps, the policy,
+    the warnings and the rest (``rest_of`` the final model)."""
+
+    verdict: str
+    start: Fit
+    final: Fit
+    scored: Scored
+    steps: tuple[Step, ...]
+    anchor: SimConfig
+    policy: Policy
+    warnings: tuple[str, ...] = ()
+    rest: dict = field(default_factory=dict)
+
+    @property
+    def added(self) -> tuple[str, ...]:
+        """Effects named missing."""
+        return self.scored.spec.added
+
+    @property
+    def removed(self) -> tuple[str, ...]:
+        """Effects of the start named superfluous."""
+        return self.scored.spec.removed
+
+    def spread(self, key: str) -> float:
+        """Jackknife standard deviation of parameter ``owner.name`` over the fold fits."""
+        vals = np.array([_get(f.config, key) for f in self.scored.folds])
+        k = len(vals)
+        return float(math.sqrt((k - 1) / k * np.sum((vals - vals.mean()) ** 2)))
+
+    def frequency(self, label: str) -> float:
+        """Bootstrap frequency with which the step that took ``label`` took it."""
+        return next((s.frequency for s in self.steps if s.taken == label), 0.0)
+
+
+def _run(jobs: list[tuple], workers: int, progress: bool, desc: str) -> list[Scored]:
+    bar = tqdm(total=len(jobs), desc=desc, disable=not progress, unit="model", leave=False)
+    out: list[Scored] = []
+    if workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork")) as pool:
+            for s in pool.map(evaluate, jobs):
+                out.append(s)
+                bar.update()
+    else:
+        for job in jobs:
+            out.append(evaluate(job))
+            bar.update()
+    bar.close()
+    return out
+
+
+def _bootstrap(judged: tuple[Judged, ...], policy: Policy, rng) -> dict[str, float]:
+    """How often each move is the accepted one of largest gain over block resamples."""
+    counts = dict.fromkeys([j.move for j in judged], 0)
+    for _ in range(policy.bootstrap):
+        idx = rng.integers(0, N_BLOCKS, N_BLOCKS)
+        verdicts = [(_verdict(j.d[:, :, idx], policy, len(judged)), j.move) for j in judged]
+        accepted = [(v[0], move) for v, move in verdicts if v[6]]
+        if accepted:
+            counts[max(accepted)[1]] += 1
+    return {k: v / policy.bootstrap for k, v in counts.items()}
+
+
+def _refit(current: Scored, data, anchor, policy) -> Scored:
+    """The control: ``current`` re-fitted on every fold to convergence (``FULL_ITER``), with no
+    move; the better of the two is the step's model, so that no move is credited with further
+    fitting."""
+    control = evaluate((None, current, data, anchor, policy, None))
+    w = weights(current.r, data)
+    return control if gain_of(control.r, current.r, data, w)[0].sum() > 0.0 else current
+
+
+def search(
+    anchor: SimConfig,
+    data: Measured,
+    *,
+    policy: Policy = DEFAULT_POLICY,
+    workers: int = 2,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+    warnings: tuple[str, ...] = (),
+) -> Result:
+    """Forward selection of moves with a backward step after every addition (module doc)."""
+    say = log or (lambda _msg: None)
+    rng = np.random.default_rng(policy.seed)
+    current = evaluate((None, None, data, anchor, policy, None))
+    say(f"start calibrated on {len(policy.folds)} folds")
+    steps: list[Step] = []
+
+    def run(moves: list[Move], desc: str) -> list[Scored]:
+        jobs = [(m, current, data, anchor, policy, None) for m in moves]
+        return _run(jobs, workers, progress, desc)
+
+    def backward(just: str | None) -> None:
+        """Remove, one at a time, what no longer earns its place; an effect of the start only
+        where its claim could be seen, is contradicted, and what is fitted of it could not be
+        seen."""
+        nonlocal current
+        for _ in range(len(anchor.effects) + policy.max_steps):
+            current = _refit(current, data, anchor, policy)
+            w = weights(current.r, data)
+            removals = [Move("remove", e.name) for e in current.folds[0].config.effects]
+            removals = [m for m in removals if f"add {m.name}" != just]
+            if not removals:
+                return
+            outs = run(removals, "backward step")
+            keep = {
+                m.name: (policy.test(gain_of(current.r, o.r, data, w), len(removals)), o)
+                for m, o in zip(removals, outs, strict=True)
+            }
+            taken = None
+            for name in sorted(
+                (n for n, (t, _o) in keep.items() if not t[2]), key=lambda n: keep[n][0][0]
+            ):
+                if name in current.spec.added:
+                    taken = name
+                    break
+                fitted = current.folds[0].config
+                if not visible(anchor.effect(name), fitted, data, w, policy) or visible(
+                    fitted.effect(name), fitted, data, w, policy
+                ):
+                    continue
+                claim = evaluate((None, current, data, anchor, policy, name))
+                if policy.test(gain_of(keep[name][1].r, claim.r, data, w), len(removals))[2]:
+                    taken = name
+                    break
+            judged = tuple(
+                Judged(f"remove {n}", -t[0], t[1], t[2], None, 0.0, 0.0, n == taken,
+                       np.zeros((4, 2, 1)))
+                for n, (t, _o) in keep.items()
+            )  # fmt: skip
+            steps.append(Step("backward", judged, f"remove {taken}" if taken else None))
+            if taken is None:
+                return
+            say(f"removed {taken}")
+            current = keep[taken][1]
+
+    backward(None)
+    for _ in range(policy.max_steps):
+        moves = available(current.spec, current.folds[0].config, anchor)
+        if not moves:
+            break
+        outs = run(moves, f"step {len(steps) + 1}: {len(moves)} moves")
+        w = weights(current.r, data)
+        judged = tuple(
+            judge(m, o, current, data, w, policy, len(moves))
+            for m, o in zip(moves, outs, strict=True)
+        )
+        for j in sorted(judged, key=lambda j: -j.gain):
+            say(
+                f"  {j.move:24s} gain {j.gain:10.1f} +- {j.se:8.1f} beyond {j.beyond:10.1f}"
+                f" deficit {j.deficit:10.1f}{'  accepted' if j.accepted else ''}"
+            )
+        ok = [(j, o) for j, o in zip(judged, outs, strict=True) if j.accepted]
+        if not ok:
+            steps.append(Step("forward", judged, None))
+            break
+        top, top_scored = max(ok, key=lambda jo: jo[0].gain)
+        freq = _bootstrap(judged, policy, rng)
+        # Within the score's uncertainty of the largest gain, the simplest move (the
+        # one-standard-error rule of cross-validation): fewest parameters added.
+        within = [
+            (j, o)
+            for j, o in ok
+            if j is top or not policy.test(gain_of(top_scored.r, o.r, data, w), len(moves))[2]
+        ]
+        by_label = {m.label: m for m in moves}
+        best, scored = min(within, key=lambda jo: (by_label[jo[0].move].size(anchor), -jo[0].gain))
+        tied = {j.move: freq[j.move] for j, _o in within if j is not best}
+        steps.append(Step("forward", judged, best.move, freq[best.move], tied))
+        say(f"took {best.move}")
+        current = scored
+        backward(best.move)
+    current = _confirm_removals(current, data, anchor, policy, say)
+    rest = rest_of(current, data, policy)
+    return _finish(current, anchor, data, policy, tuple(steps), warnings, rest)
+
+
+def _confirm_removals(current: Scored, data, anchor, policy, say) -> Scored:
+    """Restore each start effect a backward step removed whose claim the final model does not
+    contradict: a removal judged while another effect was still missing may have been the
+    stand-in's doing."""
+    for name in current.spec.removed:
+        w = weights(current.r, data)
+        claim = evaluate((None, current, data, anchor, policy, name))
+        if policy.test(gain_of(current.r, claim.r, data, w), len(current.spec.removed))[2]:
+            continue
+        removed = tuple(n for n in current.spec.removed if n != name)
+        claim = replace(claim, spec=replace(claim.spec, removed=removed))
+        current = evaluate((None, claim, data, anchor, policy, None))
+        say(f"restored {name}: the final model does not contradict its claim")
+    return current
+
+
+def structured(current: Scored, data: Measured, policy: Policy, rest: dict) -> bool:
+    """Whether ``current`` leaves structure: a group of the generic correction explains part of
+    its residual, or the residual's variance exceeds ``Policy.structured`` noise variances."""
+    return any(v[2] for v in rest.values()) or excess(current, data) > policy.structured
+
+
+def _finish(current, anchor, data, policy, steps, warnings, rest) -> Result:
+    """Calibrate start and final on the default held-out blocks; the verdict."""
+    start = calibrate(anchor, data)
+    spec = current.spec
+    final = calibrate(current.folds[0].config, data, anchor=anchor, ranges=spec.ranges)
+    if spec.added or spec.removed:
+        verdict = "effects_found"
+    else:
+        verdict = "unexplained" if structured(current, data, policy, rest) else "nothing_missing"
+    return Result(verdict, start, final, current, steps, anchor, policy, warnings, rest)
+
+
+def policy_dict(policy: Policy) -> dict:
+    """The policy as report.json carries it."""
+    return asdict(policy)
+
+
+def run_workflow(
+    trace: Trace,
+    source: SimConfig,
+    drop: tuple[str, ...] | list[str] = (),
+    *,
+    workers: int = 2,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+    policy: Policy = DEFAULT_POLICY,
+) -> tuple[Result, Measured]:
+    """The whole workflow on one measured trace: ``--drop`` applied to ``source``, the trace
+    prepared (``measure.prepare_measured``), the search run.
+
+    Returns
+    -------
+    (Result, Measured)
+    """
+    config, warnings = start_config(source, drop)
+    data = prepare_measured(trace, config)
+    result = search(
+        config, data, policy=policy, workers=workers, progress=progress, log=log,
+        warnings=warnings,
+    )  # fmt: skip
+    return result, data

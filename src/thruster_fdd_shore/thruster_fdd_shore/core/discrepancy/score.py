@@ -1,0 +1,287 @@
+"""The cross-validated score of a model and the evidence of a gain (docs/discrepancy.md).
+
+A model is calibrated on every fold of ``Policy.folds`` (``evaluate``); every sample is
+predicted by the fold that held it out, and its Gaussian log-likelihood in noise units, each
+channel weighted by its effective sample share, is the score. ``gain_of`` compares two models
+per block with the noise variance of the difference; ``evidence`` is the one acceptance test.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+from thruster_fdd_shore.core.discrepancy.correction import GROUPS, basis, corrected
+from thruster_fdd_shore.core.discrepancy.fit import (
+    FULL_ITER,
+    Fit,
+    calibrate,
+    free_parameters,
+    without_effects,
+)
+from thruster_fdd_shore.core.discrepancy.measure import (
+    CHANNELS,
+    FOLDS,
+    N_BLOCKS,
+    Measured,
+    _uncensored,
+    simulate_model,
+    weighted_residuals,
+    with_held,
+)
+from thruster_fdd_shore.core.discrepancy.moves import Spec, cold, undo
+from thruster_fdd_shore.core.sim.config import SimConfig, set_effect
+from thruster_fdd_shore.core.sim.effects import Effect
+
+
+@dataclass(frozen=True)
+class Policy:
+    """Every setting of the search; written into report.json.
+
+    Attributes
+    ----------
+    alpha : float
+        False-acceptance rate of one step, shared by its moves (Bonferroni).
+    min_gain : float
+        Least gain taken as evidence, nats (ESS-weighted): "positive" evidence on the scale of
+        Kass & Raftery (1995), whatever the standard error.
+    fold_iter : int
+        Least-squares iterations of each fold's re-fit of a move.
+    max_steps : int
+        Most forward steps.
+    active_sigma : float
+        Where a move acts: undoing it moves a channel by more than this many noise std.
+    structured : float
+        Held-out residual variance, in noise variances, above which a rest is structure
+        whatever the generic correction finds (``excess``): a difference none of its groups
+        can express is still not noise.
+    own_share : float
+        Least share of a move's gain that must lie where it acts: the rest is the re-fit of
+        the other parameters, which a move may enable but not consist of.
+    bootstrap : int
+        Block-bootstrap replicates of the recorded gains.
+    seed : int
+        Seed of the bootstrap.
+    folds : tuple of tuple of int
+        Held-out blocks of each cross-validation fold (``measure.FOLDS``: each block once, two
+        half the trace apart).
+    """
+
+    alpha: float = 0.05
+    min_gain: float = 3.0
+    fold_iter: int = 8
+    max_steps: int = 4
+    active_sigma: float = 1.0
+    own_share: float = 0.5
+    structured: float = 2.0
+    bootstrap: int = 400
+    seed: int = 0
+    folds: tuple[tuple[int, ...], ...] = FOLDS
+
+    def critical(self, moves: int) -> float:
+        """Normal quantile a gain must exceed, in its own standard errors."""
+        return float(norm.ppf(1.0 - self.alpha / max(moves, 1)))
+
+    def test(self, sv: np.ndarray, moves: int = 1) -> tuple[float, float, bool]:
+        """``evidence`` with this policy, ``moves`` sharing ``alpha``."""
+        return evidence(sv, self.critical(moves), self.min_gain)
+
+
+DEFAULT_POLICY = Policy()
+"""The policy of ``thruster-fdd discrepancy``."""
+
+
+RACE = 2
+"""Least-squares iterations each origin of a move's re-fit is given before the better one is
+fitted on (``evaluate``)."""
+
+
+@dataclass(frozen=True)
+class Scored:
+    """A model calibrated on every fold.
+
+    Attributes
+    ----------
+    spec : Spec
+        The model.
+    folds : tuple of Fit
+        Its calibration on each fold of ``Policy.folds``.
+    r, r_g : np.ndarray, shape (3, n)
+        Normalised residual of every sample from the fold holding it out, without and with
+        the static generic correction.
+    active : np.ndarray of bool, shape (n,), or None
+        For a move of one effect: where that effect acts.
+    """
+
+    spec: Spec
+    folds: tuple[Fit, ...]
+    r: np.ndarray
+    r_g: np.ndarray
+    active: np.ndarray | None = None
+
+
+def _blocks(n: int) -> np.ndarray:
+    return np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
+
+
+def _seen(data: Measured) -> np.ndarray:
+    seen = _uncensored(data)
+    return np.stack([seen[c] for c in CHANNELS])
+
+
+def weights(r: np.ndarray, data: Measured) -> np.ndarray:
+    """Effective sample share of each channel's residual, ``(1 - rho) / (1 + rho)``, shape (3,)."""
+    out = np.ones(len(CHANNELS))
+    same = _blocks(len(data.t))[1:] == _blocks(len(data.t))[:-1]
+    for c in range(len(CHANNELS)):
+        a, b = r[c, :-1][same], r[c, 1:][same]
+        if np.std(a) > 0.0 and np.std(b) > 0.0:
+            rho = min(max(float(np.corrcoef(a, b)[0, 1]), 0.0), 0.99)
+            out[c] = (1.0 - rho) / (1.0 + rho)
+    return out
+
+
+def sample_ll(r: np.ndarray, data: Measured, w: np.ndarray, mask: np.ndarray | None = None):
+    """Held-out log-likelihood of each sample, nats (constant terms dropped), shape (n,)."""
+    seen = _seen(data) & (True if mask is None else mask[None, :])
+    return -0.5 * np.sum(np.where(seen, r, 0.0) ** 2 * w[:, None], axis=0)
+
+
+def gain_of(better: np.ndarray, worse: np.ndarray, data: Measured, w, mask=None) -> np.ndarray:
+    """Per-block sum and variance of the log-likelihood gain of residuals ``better`` over
+    ``worse`` (both shape (3, n)), shape (2, N_BLOCKS).
+
+    The variance is the noise's: a sample whose two residuals differ by ``delta`` (noise
+    std) contributes ``w * delta**2``, ``w`` its channel's effective sample share.
+    """
+    seen = _seen(data) & (True if mask is None else mask[None, :])
+    d = sample_ll(better, data, w, mask) - sample_ll(worse, data, w, mask)
+    var = np.sum(np.where(seen, better - worse, 0.0) ** 2 * w[:, None], axis=0)
+    blocks = _blocks(len(d))
+    return np.stack([np.bincount(blocks, d, N_BLOCKS), np.bincount(blocks, var, N_BLOCKS)])
+
+
+def evidence(sv: np.ndarray, crit: float, least: float) -> tuple[float, float, bool]:
+    """Sum, standard error and significance of a gain given per block (``gain_of``): above
+    ``crit`` standard errors and ``least`` nats."""
+    gain = float(sv[0].sum())
+    se = float(math.sqrt(sv[1].sum()))
+    return gain, se, bool(gain > least and gain > crit * se)
+
+
+def _sse_train(config: SimConfig, data: Measured) -> float:
+    res = weighted_residuals(simulate_model(config, data), data)
+    with np.errstate(over="ignore", invalid="ignore"):
+        s = sum(float(np.sum(res[c][data.fit] ** 2)) / data.sigma[c] ** 2 for c in CHANNELS)
+    return s if math.isfinite(s) else math.inf
+
+
+def _residuals(config: SimConfig, data: Measured, sim: dict | None = None) -> np.ndarray:
+    """Normalised residuals of ``config`` (simulated as ``sim`` if given), shape (3, n)."""
+    res = weighted_residuals(simulate_model(config, data) if sim is None else sim, data)
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = np.stack([res[c] / data.sigma[c] for c in CHANNELS])
+    return np.clip(np.nan_to_num(r, nan=1e6), -1e6, 1e6)
+
+
+def _keys(config: SimConfig, anchor: SimConfig, spec: Spec, fixed: str | None):
+    keys = free_parameters(config, anchor, spec.ranges)
+    return tuple(k for k in keys if fixed is None or not k.startswith(f"{fixed}."))
+
+
+def evaluate(job: tuple) -> Scored:
+    """Calibrate a model on every fold; ``job`` = (move or None, parent or None, data, anchor,
+    policy, fixed): the parent's model with ``move`` made, from the parent's fold fits and
+    from them with the anchor's base (``moves.cold``), the better kept; with ``fixed`` (an
+    effect name) that effect is held at the anchor's values (its claim)."""
+    move, parent, data, anchor, policy, fixed = job
+    phi = basis(data)
+    n = len(data.t)
+    r, r_g = np.zeros((3, n)), np.zeros((3, n))
+    seen = _seen(data)
+    active = np.zeros(n, bool) if move is not None and move.kind != "remove" else None
+    folds = []
+    spec = Spec() if parent is None else parent.spec
+    if parent is not None and move is not None:
+        spec = move.spec(spec, parent.folds[0].config, anchor)
+    for i, held in enumerate(policy.folds):
+        fold = with_held(data, held)
+        if parent is None:
+            fit = calibrate(anchor, fold, anchor=anchor)
+        else:
+            base = parent.folds[i].config
+            if fixed is not None:
+                origins = [set_effect(base, anchor.effect(fixed))]
+            else:
+                add = move is not None and move.kind == "add"
+                origins = [base, cold(base, anchor)] if add else [base]
+            iters = policy.fold_iter if move is not None or fixed is not None else FULL_ITER
+            starts = [
+                min(
+                    move.starts(o, fold) if move is not None else [o],
+                    key=lambda c: _sse_train(c, fold),
+                )
+                for o in origins
+            ]
+            keys = _keys(starts[0], anchor, spec, fixed)
+            if len(starts) > 1:  # a short race of the origins; the better one goes on
+                raced = [
+                    calibrate(c, fold, keys, max_iter=RACE, anchor=anchor, ranges=spec.ranges)
+                    for c in starts
+                ]
+                starts = [min(raced, key=lambda f: f.bic).config]
+                iters -= RACE
+            fit = calibrate(
+                starts[0], fold, keys, max_iter=iters, anchor=anchor, ranges=spec.ranges
+            )
+        folds.append(fit)
+        sim = simulate_model(fit.config, data)
+        res = _residuals(fit.config, data, sim)
+        r[:, fold.held] = res[:, fold.held]
+        r_g[:, fold.held] = corrected(res, seen, fold.fit, fold.held, phi)[:, fold.held]
+        if active is not None:
+            sim0 = simulate_model(undo(move, fit.config, base), data)
+            moved = np.stack([np.abs(sim[c] - sim0[c]) / data.sigma[c] for c in CHANNELS])
+            active[fold.held] = np.any(moved > policy.active_sigma, axis=0)[fold.held]
+    return Scored(spec, tuple(folds), r, r_g, active)
+
+
+def excess(current: Scored, data: Measured) -> float:
+    """Held-out residual variance of ``current`` in noise variances, the mean over channels of
+    the mean square over the samples the reporting floor leaves informative (1 is noise)."""
+    seen = _seen(data)
+    return float(np.mean([np.mean(current.r[c][seen[c]] ** 2) for c in range(len(CHANNELS))]))
+
+
+def rest_of(current: Scored, data: Measured, policy: Policy) -> dict[str, tuple]:
+    """What each group of the generic correction (``correction.GROUPS``) explains of
+    ``current``'s residual, cross-validated on its folds: group -> (gain, se, evidence)."""
+    seen, w = _seen(data), weights(current.r, data)
+    folds = [
+        (with_held(data, h), _residuals(f.config, data))
+        for h, f in zip(policy.folds, current.folds, strict=True)
+    ]
+    out = {}
+    for group in GROUPS:
+        phi, r_k = basis(data, group), np.array(current.r, copy=True)
+        for fold, res in folds:
+            r_k[:, fold.held] = corrected(res, seen, fold.fit, fold.held, phi)[:, fold.held]
+        out[group] = policy.test(gain_of(r_k, current.r, data, w), len(GROUPS))
+    return out
+
+
+def visible(effect: Effect, config: SimConfig, data: Measured, w, policy) -> bool:
+    """Whether ``effect`` in ``config`` could be seen in ``data``: ``config`` with it and
+    without it differ by a gain the policy would accept. A claim that could not be seen cannot
+    be contradicted (a limit that never binds), and an effect fitted to something visible is
+    there, whatever the claimed value."""
+    with_it = _residuals(set_effect(config, effect), data)
+    without = _residuals(without_effects(config, (effect.name,)), data)
+    seen = _seen(data)
+    var = np.sum(np.where(seen, with_it - without, 0.0) ** 2 * w[:, None], axis=0)
+    blocks = _blocks(len(data.t))
+    sv = np.stack([np.bincount(blocks, var / 2.0, N_BLOCKS), np.bincount(blocks, var, N_BLOCKS)])
+    return policy.test(sv)[2]
