@@ -50,12 +50,14 @@ from thruster_fdd_shore.core.discrepancy.cases import (
     MISMATCH_DURATION_S,
     MISMATCH_HIDDEN,
     MISMATCH_PAIRS,
+    OUTSIDE,
     PLAUSIBLE,
     SIGNALS,
     SUPERFLUOUS,
     Case,
     make_case,
     make_mismatch_case,
+    make_outside_case,
 )
 from thruster_fdd_shore.core.discrepancy.engine import run_workflow
 from thruster_fdd_shore.core.discrepancy.fit import without_effects
@@ -76,9 +78,15 @@ PAIRS = (
 """Hidden pairs of the exact-base family."""
 
 
-FAMILIES = ("exact", "t100", "t200")
+FAMILIES = ("exact", "t100", "t200", *OUTSIDE)
 """``exact``: base physics of the start preset (t100); ``t100`` / ``t200``: mismatch cases
-starting from that preset."""
+starting from that preset; ``throttle_curve`` / ``rpm_filter``: a structure neither the
+simulator nor the vocabulary has (``cases.make_outside_case``)."""
+
+OUTSIDE_HIDDEN = ("deadband", "dead_time", "voltage_sag")
+"""Effects hidden beside a structure outside the vocabulary."""
+
+OUTSIDE_DURATION_S = 240.0
 
 
 EXACT_DURATION_S = 60.0
@@ -140,6 +148,8 @@ def make_job_case(family: str, hidden: tuple[str, ...], superfluous: tuple[str, 
     if family == "exact":
         signal = None if hidden else SIGNALS[seed % len(SIGNALS)]
         return make_case(hidden, seed, duration_s=duration, signal=signal)
+    if family in OUTSIDE:
+        return make_outside_case(family, hidden, seed, duration_s=duration)
     return make_mismatch_case(
         hidden, seed, preset=family, superfluous=superfluous, duration_s=duration
     )
@@ -343,6 +353,8 @@ def table(rows: list[dict]) -> str:
 
 def _wanted(family: str) -> list[tuple[tuple[str, ...], tuple[str, ...]]]:
     """(hidden, superfluous) of every case kind of ``family``; () () is the null trace."""
+    if family in OUTSIDE:
+        return [*(((name,), ()) for name in OUTSIDE_HIDDEN), ((), ())]
     if family == "exact":
         kinds = [((name,), ()) for name in PLAUSIBLE] + [(p, ()) for p in PAIRS]
     else:
@@ -362,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--family", nargs="+", choices=FAMILIES, default=list(FAMILIES),
-                        help="case families (default: all three)")  # fmt: skip
+                        help="case families (default: all)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=5, help="seeds per case (default 5)")
     parser.add_argument(
         "--first-seed",
@@ -399,7 +411,8 @@ def main(argv: list[str] | None = None) -> int:
             wanted = [by_name[c] for c in args.cases if c in by_name]
             if not wanted:
                 parser.error(f"no case of {args.cases} in family {family}; known: {list(by_name)}")
-        duration = args.duration or (EXACT_DURATION_S if family == "exact" else MISMATCH_DURATION_S)
+        default = {"exact": EXACT_DURATION_S, **dict.fromkeys(OUTSIDE, OUTSIDE_DURATION_S)}
+        duration = args.duration or default.get(family, MISMATCH_DURATION_S)
         for s in range(args.seeds):  # seed-major: a study stopped early still covers every case
             for hidden, superfluous in wanted:
                 if hidden or superfluous:

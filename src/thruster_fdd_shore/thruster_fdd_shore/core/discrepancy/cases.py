@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.signal import lfilter
 
 from thruster_fdd.core.traces.data import Trace
 from thruster_fdd_shore.core.discrepancy.moves import start_config
@@ -461,3 +462,35 @@ def make_mismatch_case(
         switches=switches,
         unit=unit,
     )
+
+
+OUTSIDE = ("throttle_curve", "rpm_filter")
+"""Structures neither the simulator nor the vocabulary has (``make_outside_case``)."""
+
+
+def make_outside_case(kind: str, hidden: tuple[str, ...], seed: int, duration_s: float = 240.0):
+    """A t100 case (``make_case``, ``multilevel``) whose thruster has a structure outside the
+    simulator and the vocabulary: ``throttle_curve``, the ESC maps the command through
+    ``u + a u (1 - |u|)`` (``a`` uniform in 0.15-0.4; the trace records the command sent);
+    ``rpm_filter``, the speed is reported through a first-order filter of 0.2-0.6 s."""
+    if kind not in OUTSIDE:
+        raise ValueError(f"unknown structure {kind!r}; expected one of {OUTSIDE}")
+    case = make_case(hidden, seed, duration_s=duration_s, signal="multilevel")
+    rng = np.random.default_rng([seed, 0x0575])
+    truth = replace(case.unit, spread=0.0, measurement=load_config("t100").measurement)
+    t, u = case.trace.t, case.trace.command
+    if kind == "throttle_curve":
+        a = float(rng.uniform(0.15, 0.4))
+        sent = np.clip(u + a * u * (1.0 - np.abs(u)), -1.0, 1.0)
+        trace = replace(simulate(truth, t, sent, seed=seed), command=u)
+        clean = replace(simulate(replace(truth, measurement=Measurement()), t, sent), command=u)
+        switches = {"throttle_curve": f"a {a:.3f}"}
+    else:
+        tau = float(rng.uniform(0.2, 0.6))
+        alpha = 1.0 - math.exp(-float(np.median(np.diff(t))) / tau)
+        trace, clean = case.trace, case.clean
+        rpm = lfilter([alpha], [1.0, alpha - 1.0], trace.rpm)
+        trace = replace(trace, rpm=np.round(rpm))
+        clean = replace(clean, rpm=lfilter([alpha], [1.0, alpha - 1.0], clean.rpm))
+        switches = {"rpm_filter": f"tau {tau:.3f} s"}
+    return replace(case, trace=trace, clean=clean, switches=switches)
