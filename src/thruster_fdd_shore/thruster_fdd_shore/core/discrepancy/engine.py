@@ -84,20 +84,20 @@ class Judged:
 def judge(move: Move, cand: Scored, parent: Scored, data: Measured, w, policy, moves) -> Judged:
     """Apply the acceptance rule to ``cand`` (``parent`` with ``move``; ``moves`` share the
     step's ``alpha``)."""
-    where = gain_of(cand.r, parent.r, data, w, cand.active) if cand.active is not None else None
+    plain = gain_of(cand.r, parent.r, data, w)
+    acts = cand.active is not None
     stack = np.stack(
         [
-            gain_of(cand.r, parent.r, data, w),
-            gain_of(cand.r, parent.r, data, w) if where is None else where,
+            plain,
+            gain_of(cand.r, parent.r, data, w, cand.active) if acts else plain,
             gain_of(cand.r_g, parent.r_g, data, w),
             gain_of(parent.r_g, cand.r, data, w),
         ]
     )
     gain, se, sig, gain_where, beyond, deficit, accepted = _verdict(stack, policy, moves)
     return Judged(
-        move.label, gain, se, sig, gain_where if where is not None else None, beyond, deficit,
-        accepted, stack,
-    )  # fmt: skip
+        move.label, gain, se, sig, gain_where if acts else None, beyond, deficit, accepted, stack
+    )
 
 
 def _verdict(d: np.ndarray, policy: Policy, moves: int) -> tuple:

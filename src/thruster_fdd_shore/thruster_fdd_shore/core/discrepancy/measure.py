@@ -75,10 +75,15 @@ class Measured:
         return getattr(self, name)
 
 
+def block_of(n: int) -> np.ndarray:
+    """Block (0 .. ``N_BLOCKS`` - 1) of each of ``n`` samples, consecutive equal parts, shape
+    (n,)."""
+    return np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
+
+
 def _held(n: int, blocks: tuple[int, ...]) -> np.ndarray:
     """Mask of shape (n,): the samples of ``blocks`` of ``N_BLOCKS`` equal interleaved ones."""
-    block = np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
-    return np.isin(block, blocks)
+    return np.isin(block_of(n), blocks)
 
 
 def with_held(data: Measured, blocks: tuple[int, ...]) -> Measured:

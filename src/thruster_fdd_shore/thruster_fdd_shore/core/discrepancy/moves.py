@@ -99,15 +99,6 @@ class Spec:
     changes: tuple[str, ...] = ()
     ranges: dict[str, float] = field(default_factory=dict)
 
-    @property
-    def moves(self) -> tuple[str, ...]:
-        """Every move made, as ``Move.label``s."""
-        return (
-            *(f"add {n}" for n in self.added),
-            *(f"remove {n}" for n in self.removed),
-            *self.changes,
-        )
-
 
 BASE_CHANGES = (
     "widen bounds",
@@ -133,8 +124,8 @@ class Move:
     name: str
 
     def size(self, anchor: SimConfig) -> int:
-        """Parameters the move adds: an effect's, the terms a base change frees or widens
-        (one for a switch)."""
+        """Parameters the move adds: an effect's, the drive-loss terms it frees, every base
+        parameter for a widening, one for another base change."""
         if self.kind == "add":
             return len(fields(EFFECTS[self.name]))
         if self.kind == "remove":
@@ -203,16 +194,15 @@ UNDONE = {
     "refit winding loss": ("params.r_speed_ohm_s",),
     "widen bounds": tuple(f"params.{n}" for n in BASE_FIT),
 }
-"""What a base change changes: the terms ``Move.undo`` takes back."""
+"""What a base change changes: the terms ``undo`` takes back."""
 
 
 def undo(move: Move, config: SimConfig, before: SimConfig) -> SimConfig:
-    """``config`` (fitted with ``move``) with what the move changed taken back to ``before``
-    (the model it was made on): where the two differ is where the move acts."""
+    """``config`` (fitted with ``move``, an addition or a base change) with what the move
+    changed taken back to ``before`` (the model it was made on): where the two differ is where
+    the move acts."""
     if move.kind == "add":
         return without_effects(config, (move.name,))
-    if move.kind == "remove":
-        return set_effect(config, before.effect(move.name))
     keys = UNDONE[move.name]
     params = {
         k.split(".")[1]: getattr(before.params, k.split(".")[1])

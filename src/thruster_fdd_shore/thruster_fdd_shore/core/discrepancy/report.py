@@ -24,6 +24,7 @@ from thruster_fdd_shore.core.discrepancy.measure import (
     simulate_model,
     weighted_residuals,
 )
+from thruster_fdd_shore.core.discrepancy.moves import UNDONE
 from thruster_fdd_shore.core.discrepancy.score import excess
 from thruster_fdd_shore.core.discrepancy.where import describe, regions, signatures
 from thruster_fdd_shore.core.json_text import json_text
@@ -161,14 +162,9 @@ def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
-BASE_VALUES = {
-    "second ESC stage": ("structure.esc_tau2_s", "esc_lag.tau_s"),
-    "other braking law": ("structure.regen",),
-    "no drive saturation": ("params.esc_v_sat_v",),
-    "drive losses": ("params.esc_v_sat_v", "params.r_speed_ohm_s", "structure.i_idle_per_krpm_a"),
-    "refit winding loss": ("params.r_speed_ohm_s",),
-}
-"""Values a base change is reported with (``widen bounds``: the widened parameters)."""
+BASE_VALUES = {**UNDONE, "second ESC stage": (*UNDONE["second ESC stage"], "esc_lag.tau_s")}
+"""Values a base change is reported with: the terms it changes (``moves.UNDONE``), the lag the
+second stage shortens; for ``widen bounds`` only the parameters it widened."""
 
 
 def _value(config: SimConfig, key: str) -> float | bool:
@@ -184,9 +180,9 @@ def base_changes(result: Result) -> list[dict]:
     spec, config = result.scored.spec, result.final.config
     out = []
     for label in spec.changes:
-        keys = BASE_VALUES.get(label) or [
-            k for k in spec.ranges if k.startswith("params.") and k.split(".")[1] in BASE_FIT
-        ]
+        keys = BASE_VALUES[label]
+        if label == "widen bounds":
+            keys = [k for k in spec.ranges if k in keys]
         out.append({"change": label, "values": {k: _value(config, k) for k in keys}})
     return out
 

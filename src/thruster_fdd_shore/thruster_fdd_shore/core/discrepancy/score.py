@@ -28,6 +28,7 @@ from thruster_fdd_shore.core.discrepancy.measure import (
     N_BLOCKS,
     Measured,
     _uncensored,
+    block_of,
     simulate_model,
     weighted_residuals,
     with_held,
@@ -123,10 +124,6 @@ class Scored:
     active: np.ndarray | None = None
 
 
-def _blocks(n: int) -> np.ndarray:
-    return np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
-
-
 def _seen(data: Measured) -> np.ndarray:
     seen = _uncensored(data)
     return np.stack([seen[c] for c in CHANNELS])
@@ -135,7 +132,7 @@ def _seen(data: Measured) -> np.ndarray:
 def weights(r: np.ndarray, data: Measured) -> np.ndarray:
     """Effective sample share of each channel's residual, ``(1 - rho) / (1 + rho)``, shape (3,)."""
     out = np.ones(len(CHANNELS))
-    same = _blocks(len(data.t))[1:] == _blocks(len(data.t))[:-1]
+    same = block_of(len(data.t))[1:] == block_of(len(data.t))[:-1]
     for c in range(len(CHANNELS)):
         a, b = r[c, :-1][same], r[c, 1:][same]
         if np.std(a) > 0.0 and np.std(b) > 0.0:
@@ -160,7 +157,7 @@ def gain_of(better: np.ndarray, worse: np.ndarray, data: Measured, w, mask=None)
     seen = _seen(data) & (True if mask is None else mask[None, :])
     d = sample_ll(better, data, w, mask) - sample_ll(worse, data, w, mask)
     var = np.sum(np.where(seen, better - worse, 0.0) ** 2 * w[:, None], axis=0)
-    blocks = _blocks(len(d))
+    blocks = block_of(len(d))
     return np.stack([np.bincount(blocks, d, N_BLOCKS), np.bincount(blocks, var, N_BLOCKS)])
 
 
@@ -280,8 +277,6 @@ def visible(effect: Effect, config: SimConfig, data: Measured, w, policy) -> boo
     there, whatever the claimed value."""
     with_it = _residuals(set_effect(config, effect), data)
     without = _residuals(without_effects(config, (effect.name,)), data)
-    seen = _seen(data)
-    var = np.sum(np.where(seen, with_it - without, 0.0) ** 2 * w[:, None], axis=0)
-    blocks = _blocks(len(data.t))
-    sv = np.stack([np.bincount(blocks, var / 2.0, N_BLOCKS), np.bincount(blocks, var, N_BLOCKS)])
-    return policy.test(sv)[2]
+    var = gain_of(with_it, without, data, w)[1]
+    # The gain the effect would show if the data followed it exactly: half the variance.
+    return policy.test(np.stack([var / 2.0, var]))[2]
