@@ -1,6 +1,6 @@
 """Benchmark: wall time of one full discrepancy run on a 10-minute trace at 10 Hz.
 
-The measured trace hides ``dead_time`` from the t100 model (``core.discrepancy.cases``): by
+The measured trace hides ``dead_time`` from the t100 model (``core.sim.cases``): by
 default a trace of the preset's own base physics (``make_case``), with ``--mismatch t100`` or
 ``t200`` one whose base physics differ from the preset's (``make_mismatch_case``, seed
 ``--seed``). The run is the whole workflow of ``thruster-fdd discrepancy`` (calibration,
@@ -20,9 +20,9 @@ import time
 
 from results_file import Run, add_results_option
 
-from thruster_fdd_shore.core.discrepancy.cases import make_case, make_mismatch_case
 from thruster_fdd_shore.core.discrepancy.engine import run_workflow
 from thruster_fdd_shore.core.discrepancy.report import write_report
+from thruster_fdd_shore.core.sim.cases import make_case, make_mismatch_case
 
 
 def main() -> None:

@@ -2,7 +2,7 @@
 
 - ``exact``: t100 traces whose base physics are the start preset's exactly (plus unit spread);
   every effect of the vocabulary hidden in turn, three pairs, null traces with nothing hidden
-  (``core.discrepancy.cases.make_case``). Each case runs on the signal that excites its effect
+  (``core.sim.cases.make_case``). Each case runs on the signal that excites its effect
   (``cases.EXCITING``); null traces cycle through all case signals. Default 60 s traces.
 - ``t100`` / ``t200``: mismatch traces (``cases.make_mismatch_case``): the measured thruster
   differs from the start preset by a random combination of structural switches outside the
@@ -46,7 +46,14 @@ from scipy.stats import beta
 from tqdm import tqdm
 
 from thruster_fdd.core.traces.data import Trace
-from thruster_fdd_shore.core.discrepancy.cases import (
+from thruster_fdd_shore.core.discrepancy.engine import run_workflow
+from thruster_fdd_shore.core.discrepancy.measure import CHANNELS, Measured, simulate_model
+from thruster_fdd_shore.core.discrepancy.report import (
+    FRICTION_UNITS,
+    friction_currents,
+    report_json,
+)
+from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_DURATION_S,
     MISMATCH_HIDDEN,
     MISMATCH_PAIRS,
@@ -59,15 +66,7 @@ from thruster_fdd_shore.core.discrepancy.cases import (
     make_mismatch_case,
     make_outside_case,
 )
-from thruster_fdd_shore.core.discrepancy.engine import run_workflow
-from thruster_fdd_shore.core.discrepancy.fit import without_effects
-from thruster_fdd_shore.core.discrepancy.measure import CHANNELS, Measured, simulate_model
-from thruster_fdd_shore.core.discrepancy.report import (
-    FRICTION_UNITS,
-    friction_currents,
-    report_json,
-)
-from thruster_fdd_shore.core.sim.config import Measurement, SimConfig
+from thruster_fdd_shore.core.sim.config import Measurement, SimConfig, without_effects
 from thruster_fdd_shore.core.sim.physics import simulate
 
 PAIRS = (

@@ -18,17 +18,17 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from thruster_fdd_shore.cli import main
-from thruster_fdd_shore.core.discrepancy.cases import PLAUSIBLE, make_case
 from thruster_fdd_shore.core.discrepancy.correction import basis, corrected
-from thruster_fdd_shore.core.discrepancy.engine import run_workflow
+from thruster_fdd_shore.core.discrepancy.engine import run_workflow, structured
 from thruster_fdd_shore.core.discrepancy.measure import FOLDS, prepare_measured, with_held
 from thruster_fdd_shore.core.discrepancy.report import REPORT_FILES
 from thruster_fdd_shore.core.discrepancy.score import Policy, evidence, gain_of
+from thruster_fdd_shore.core.sim.cases import PLAUSIBLE, make_case
 from thruster_fdd_shore.core.sim.config import load_config, perturb_unit, set_effect
 from thruster_fdd_shore.core.sim.effects import make_effect
 from thruster_fdd_shore.core.sim.physics import simulate
 from thruster_fdd_shore.core.sim.signals import make_signal
-from thruster_fdd_shore.core.traces.csv_io import write_trace_csv
+from thruster_fdd_shore.core.traces.csv_io import read_trace_csv, write_trace_csv
 
 REPO = Path(__file__).resolve().parents[3]
 T200_DATA = REPO.parent / "shared" / "data" / "t200"
@@ -139,7 +139,7 @@ def _hidden(job: tuple) -> tuple:
     _attr, lo, hi = PLAUSIBLE[name]
     value = lo + fraction * (hi - lo)
     trace, start = warped_case({name: value}, seed, 0.0)
-    return value, _run(trace, start)
+    return value, *run_workflow(trace, start, workers=1, progress=False)
 
 
 @given(seed=st.integers(0, 10**6))
@@ -154,12 +154,14 @@ def test_nothing_is_named_on_a_null_trace(seed: int) -> None:
 @given(name=st.sampled_from(ANY_SIGNAL), fraction=st.floats(0.0, 1.0), seed=st.integers(0, 10**6))
 @EXAMPLES
 def test_a_hidden_effect_is_named_with_its_value(name: str, fraction: float, seed: int) -> None:
-    value, result = _hidden((name, fraction, seed))
+    value, result, data = _hidden((name, fraction, seed))
     assert result.added == (name,), result.steps
     assert result.verdict == "effects_found"
     fitted = result.final.config.effect(name).params()[PLAUSIBLE[name][0]]
     assert abs(fitted / value - 1.0) <= 0.25
     assert result.removed == ()
+    # The simulator's own structure, found: nothing structured is left.
+    assert not structured(result.scored, data, result.policy, result.rest), result.rest
 
 
 @given(seed=st.integers(0, 10**6))
@@ -241,11 +243,13 @@ def test_cli_end_to_end(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 @pytest.mark.skipif(not T200_DATA.is_dir(), reason=f"T200 measurements not found at {T200_DATA}")
-def test_t200_bench_data_names_the_deadband(load_script) -> None:
-    """Real data: the six T200 sheets as a step trace, the t200 preset without its deadband.
+def test_t200_bench_data_names_the_deadband(load_script, tmp_path: Path) -> None:
+    """Real data: the six T200 sheets as the step trace file a user makes
+    (scripts/t200_to_trace.py, docs/discrepancy.md), the t200 preset without its deadband.
     The deadband is named within 10 % of the preset's steady-state calibration (an
     independent fit of the same sheets, scripts/calibrate_t200.py), and no other effect."""
-    trace = load_script("t200_to_trace").steps_trace(T200_DATA)
+    write_trace_csv(load_script("t200_to_trace").steps_trace(T200_DATA), tmp_path / "t200.csv")
+    trace = read_trace_csv(tmp_path / "t200.csv")
     t200 = load_config("t200")
     result, _ = run_workflow(trace, t200, ["deadband"], workers=2, progress=False)
     assert result.added == ("deadband",)

@@ -9,14 +9,6 @@ import numpy as np
 import pytest
 
 from thruster_fdd_shore.cli import main
-from thruster_fdd_shore.core.discrepancy.cases import (
-    MISMATCH_SWITCHES,
-    PLAUSIBLE,
-    make_case,
-    make_mismatch_case,
-    peak_duty_rate,
-    plausible_ranges,
-)
 from thruster_fdd_shore.core.discrepancy.fit import BASE_RANGE, calibrate
 from thruster_fdd_shore.core.discrepancy.measure import (
     FOLDS,
@@ -30,6 +22,14 @@ from thruster_fdd_shore.core.discrepancy.measure import (
     with_held,
 )
 from thruster_fdd_shore.core.discrepancy.moves import start_config
+from thruster_fdd_shore.core.sim.cases import (
+    MISMATCH_SWITCHES,
+    PLAUSIBLE,
+    make_case,
+    make_mismatch_case,
+    peak_duty_rate,
+    plausible_ranges,
+)
 from thruster_fdd_shore.core.sim.config import Measurement, load_config, set_effect
 from thruster_fdd_shore.core.sim.effects import make_effect
 from thruster_fdd_shore.core.sim.physics import simulate

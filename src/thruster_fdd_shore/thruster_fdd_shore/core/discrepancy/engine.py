@@ -15,12 +15,12 @@ One score, one acceptance rule, one loop:
   clearly better than the move. Gains are counted against a control, the model re-fitted as
   the moves are, so no move is credited with further fitting.
 - **Loop**: forward, of the accepted moves within the score's uncertainty of the largest gain,
-  the one adding the fewest parameters (the one-standard-error rule); after every addition a
-  backward step
-  removes what no longer earns its place; a start effect only when its claimed values could
-  be seen and the data contradict them, and its fitted values could not be seen (a limit that
-  never binds stays, and so does an effect the thruster has with another value); at the end a
-  removed start effect the final model does not contradict is restored.
+  the one adding the fewest parameters (the one-standard-error rule); after every addition,
+  and when no move is accepted, a backward step removes what no longer earns its place (and
+  the forward steps go on if it removed anything); a start effect only when the data
+  contradict its claimed values: its removal passes the acceptance rule against the claim,
+  where the claim acts (a limit that never binds stays) and beyond the generic correction. At
+  the end a removed start effect the final model does not contradict is restored.
 
 A block bootstrap of the recorded gains gives each choice its selection frequency and the
 weights of the moves within the score's uncertainty of it; the fold fits give every named
@@ -46,12 +46,13 @@ from thruster_fdd_shore.core.discrepancy.score import (
     DEFAULT_POLICY,
     Policy,
     Scored,
+    effective_samples,
     evaluate,
     excess,
     gain_of,
     rest_of,
-    visible,
     weights,
+    where_claimed,
 )
 from thruster_fdd_shore.core.sim.config import SimConfig
 
@@ -220,18 +221,18 @@ def search(
         jobs = [(m, current, data, anchor, policy, None) for m in moves]
         return _run(jobs, workers, progress, desc)
 
-    def backward(just: str | None) -> None:
+    def backward(just: str | None) -> bool:
         """Remove, one at a time, what no longer earns its place; an effect of the start only
-        where its claim could be seen, is contradicted, and what is fitted of it could not be
-        seen."""
+        where the data also contradict its claim. Whether anything was removed."""
         nonlocal current
+        removed = False
         for _ in range(len(anchor.effects) + policy.max_steps):
             current = _refit(current, data, anchor, policy)
             w = weights(current.r, data)
             removals = [Move("remove", e.name) for e in current.folds[0].config.effects]
             removals = [m for m in removals if f"add {m.name}" != just]
             if not removals:
-                return
+                return removed
             outs = run(removals, "backward step")
             keep = {
                 m.name: (policy.test(gain_of(current.r, o.r, data, w), len(removals)), o)
@@ -244,13 +245,8 @@ def search(
                 if name in current.spec.added:
                     taken = name
                     break
-                fitted = current.folds[0].config
-                if not visible(anchor.effect(name), fitted, data, w, policy) or visible(
-                    fitted.effect(name), fitted, data, w, policy
-                ):
-                    continue
-                claim = evaluate((None, current, data, anchor, policy, name))
-                if policy.test(gain_of(keep[name][1].r, claim.r, data, w), len(removals))[2]:
+                n = len(removals)
+                if _contradicted(keep[name][1], current, name, data, anchor, policy, n)[0]:
                     taken = name
                     break
             judged = tuple(
@@ -260,14 +256,18 @@ def search(
             )  # fmt: skip
             steps.append(Step("backward", judged, f"remove {taken}" if taken else None))
             if taken is None:
-                return
+                return removed
             say(f"removed {taken}")
-            current = keep[taken][1]
+            current, removed = keep[taken][1], True
+        return removed
 
-    backward(None)
     for _ in range(policy.max_steps):
         moves = available(current.spec, current.folds[0].config, anchor)
+        # When no move earns its place, what the model holds is judged: a removal judged
+        # while an effect is still missing would be credited with the missing effect's work.
         if not moves:
+            if backward(None):
+                continue
             break
         outs = run(moves, f"step {len(steps) + 1}: {len(moves)} moves")
         w = weights(current.r, data)
@@ -283,6 +283,8 @@ def search(
         ok = [(j, o) for j, o in zip(judged, outs, strict=True) if j.accepted]
         if not ok:
             steps.append(Step("forward", judged, None))
+            if backward(None):
+                continue
             break
         top, top_scored = max(ok, key=lambda jo: jo[0].gain)
         freq = _bootstrap(judged, policy, rng)
@@ -300,9 +302,23 @@ def search(
         say(f"took {best.move}")
         current = scored
         backward(best.move)
+    else:
+        backward(None)
     current = _confirm_removals(current, data, anchor, policy, say)
     rest = rest_of(current, data, policy)
     return _finish(current, anchor, data, policy, tuple(steps), warnings, rest)
+
+
+def _contradicted(without: Scored, current: Scored, name, data, anchor, policy, moves) -> tuple:
+    """Whether the data contradict the claim of start effect ``name``, and the claim (``current``
+    with ``name`` held at the claimed values): ``without`` (``current`` without it) passes the
+    acceptance rule against the claim, the generic correction included, so that a difference
+    of another kind (a throttle curve) does not make a start effect look superfluous."""
+    claim = evaluate((None, current, data, anchor, policy, name))
+    w = weights(current.r, data)
+    without = replace(without, active=where_claimed(claim, name, data, policy))
+    j = judge(Move("remove", name), without, claim, data, w, policy, moves)
+    return j.accepted, claim
 
 
 def _confirm_removals(current: Scored, data, anchor, policy, say) -> Scored:
@@ -310,9 +326,9 @@ def _confirm_removals(current: Scored, data, anchor, policy, say) -> Scored:
     contradict: a removal judged while another effect was still missing may have been the
     stand-in's doing."""
     for name in current.spec.removed:
-        w = weights(current.r, data)
-        claim = evaluate((None, current, data, anchor, policy, name))
-        if policy.test(gain_of(current.r, claim.r, data, w), len(current.spec.removed))[2]:
+        moves = len(current.spec.removed)
+        contradicted, claim = _contradicted(current, current, name, data, anchor, policy, moves)
+        if contradicted:
             continue
         removed = tuple(n for n in current.spec.removed if n != name)
         claim = replace(claim, spec=replace(claim.spec, removed=removed))
@@ -322,9 +338,14 @@ def _confirm_removals(current: Scored, data, anchor, policy, say) -> Scored:
 
 
 def structured(current: Scored, data: Measured, policy: Policy, rest: dict) -> bool:
-    """Whether ``current`` leaves structure: a group of the generic correction explains part of
-    its residual, or the residual's variance exceeds ``Policy.structured`` noise variances."""
-    return any(v[2] for v in rest.values()) or excess(current, data) > policy.structured
+    """Whether ``current`` leaves structure: a group of the generic correction explains at least
+    ``Policy.rest_least`` noise variances of its residual with evidence, or the residual's
+    variance exceeds ``Policy.structured`` noise variances."""
+    least = policy.rest_least * effective_samples(current.r, data) / 2.0
+    return (
+        any(v[2] and v[0] > least for v in rest.values())
+        or excess(current, data, policy) > policy.structured
+    )
 
 
 def _finish(current, anchor, data, policy, steps, warnings, rest) -> Result:

@@ -39,29 +39,23 @@ STRUCTURE_FIT: dict[str, float] = {
 }
 """Structural base terms (``owner.name`` -> the value that means absent) the anchor may lack:
 drive saturation (fitted as ``1 / esc_v_sat_v``, so none is 0), a speed-dependent winding loss
-and idle current growing with speed (``DRIVE_LOSSES``, fitted once the search adopted them: a
-base change, ``search.base_changes``); and a second ESC stage once the search adopted one
-(fitted freely it traded with the dead time, the lag and the slew limit, and stuck fits in
-wrong splits of the delay), only behind an ``esc_lag`` and never slower than it (two stages in
-cascade commute: ordering them removes a symmetry of the fit). A term the anchor has was
-calibrated with it and is kept: refitted by simulation error it trades against the effects (on
-the T200 bench trace the t200's drive loss and speed-dependent resistance absorb the deadband:
-0.0093 instead of 0.034), unless the search adopted its re-fit as a base change (``ranges``
-holds its key: the winding loss, ``search.base_changes``)."""
+and idle current growing with speed (``DRIVE_LOSSES``), and a second ESC stage, each fitted
+only once the search adopted it (a base change, ``moves.BASE_CHANGES``): free, they trade with
+the effects (the drive losses with friction and the deadband, the second stage with the delays).
+The second stage sits behind an ``esc_lag`` and is never slower than it (two stages in cascade
+commute: ordering them removes a symmetry of the fit). A term the anchor has was calibrated
+with it and is kept, unless the search adopted its re-fit (``ranges`` holds its key)."""
 
 
 DRIVE_LOSSES = ("params.esc_v_sat_v", "params.r_speed_ohm_s", "structure.i_idle_per_krpm_a")
 """``STRUCTURE_FIT`` terms of the static drive and loss curves. One the anchor lacks is fitted
 only when ``calibrate``'s ``ranges`` holds its key (the value is unused: their bounds are
-physical), which the search's drive-loss base change sets. Fitted on every calibration they
-absorbed friction on traces of the start's own build (exact-base study, seeds 300-319: the
-friction singles named exactly in 25 of 40 cases, 37 of 40 without them)."""
+physical), which the search's drive-loss base change sets."""
 
 
 FULL_ITER = 30
-"""Least-squares iterations of a full calibration (``calibrate``'s default; most stop earlier,
-on ``ftol``). 12 left fits from a far start (a superfluous dead time, k_q outside its range)
-at held-out score 7.2 where 19 reached 1.3."""
+"""Least-squares iterations of a calibration (``calibrate``'s default; most stop earlier, on
+``ftol``), enough from a far start (a superfluous dead time, ``k_q`` outside its range)."""
 
 
 BLOWN_UP = 1e6
@@ -165,18 +159,9 @@ def _lag(config: SimConfig) -> float:
     return lag.tau_s if lag is not None else 0.0
 
 
-def without_effects(config: SimConfig, names: Collection[str]) -> SimConfig:
-    """``config`` without the effects ``names``; without ``esc_lag`` also without a second ESC
-    stage (fitted as a fraction of it, it would become the lag)."""
-    config = replace(config, effects=tuple(e for e in config.effects if e.name not in names))
-    if "esc_lag" in names and config.structure.esc_tau2_s > 0.0:
-        config = replace(config, structure=replace(config.structure, esc_tau2_s=0.0))
-    return config
-
-
 def _second_stage(config: SimConfig) -> bool:
     """Whether ``config`` has a second ESC stage to fit: adopted by the search (a base change,
-    ``search.base_changes``), behind an ``esc_lag``."""
+    ``moves.BASE_CHANGES``), behind an ``esc_lag``."""
     return _lag(config) > 0.0 and config.structure.esc_tau2_s > 0.0
 
 
@@ -257,9 +242,8 @@ def _spec(config: SimConfig, key: str, anchor: SimConfig, factor: float) -> _Par
         start = max(value, 1e-12)
         return _Param(key, start, "log", 1.0, -4.0, 4.0)
     # Base parameters stay within a factor of the anchor (the user's starting configuration,
-    # a calibrated simulator). Bounds around each round's start let them drift by that factor
-    # again in every round: on the T200 bench trace r_ohm went from 0.108 to 0.0046 ohm over
-    # the rounds, and the deadband came out 0.021 instead of 0.033.
+    # a calibrated simulator), not of each fit's start, from which they would drift again on
+    # every re-fit.
     return _bounded_log(key, value, _get(anchor, key), factor)
 
 
@@ -360,9 +344,8 @@ def calibrate(
         res = weighted_residuals(simulate_model(build(z), data), data)
         out = np.concatenate([res[c][fit_idx] / s for c, s in zip(CHANNELS, scale, strict=True)])
         # A simulation that blows up (a trial step far out: a supply resistance much larger
-        # than the motor's makes the bus voltage oscillate) is a very bad, finite fit. Clipped,
-        # not only where it overflows: residuals huge but finite made the finite-difference
-        # Jacobian overflow and the SVD of least squares fail (t100 mismatch 697).
+        # than the motor's makes the bus voltage oscillate) is a very bad, finite fit; clipped
+        # everywhere, as huge finite residuals overflow the finite-difference Jacobian.
         return np.clip(np.nan_to_num(out, nan=BLOWN_UP), -BLOWN_UP, BLOWN_UP)
 
     # z = 0 (the start) strictly inside the bounds, so the first trust region is sized 1: a
@@ -370,8 +353,8 @@ def calibrate(
     lower = np.minimum([s.lower for s in specs], -1e-6)
     upper = np.maximum([s.upper for s in specs], 1e-6)
     z0 = np.zeros(len(specs))
-    # One BLAS thread: the SVD of the tall Jacobian (about 12600 x 12 on a 10-minute trace) takes
-    # 4 ms on one OpenBLAS thread and 120 ms on two on a busy 2-core machine (measured).
+    # One BLAS thread: the SVD of the tall, narrow Jacobian is many times slower on two
+    # threads of a busy 2-core machine.
     with threadpool_limits(limits=1, user_api="blas"):
         sol = least_squares(
             fun,

@@ -135,8 +135,7 @@ def _grid_step(x: np.ndarray) -> float:
     The 10th percentile of the gaps between its distinct non-zero values: the grid step of a
     quantised sensor even where a few values lie off the grid (continuous data give a step
     near 0). A channel whose value changes in under ``MOVING`` of its samples (outside
-    stretches of 0) holds set-points, exact on their levels (the T200 bench trace's supply,
-    six levels 2 V apart): no grid.
+    stretches of 0) holds set-points, exact on their levels (a bench supply): no grid.
     """
     live = (x[1:] != 0.0) | (x[:-1] != 0.0)
     levels = np.unique(x[x != 0.0])

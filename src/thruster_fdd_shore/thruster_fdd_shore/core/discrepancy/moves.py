@@ -15,14 +15,9 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from thruster_fdd.core.errors import BadInputError
-from thruster_fdd_shore.core.discrepancy.fit import (
-    BASE_FIT,
-    BASE_RANGE,
-    lacking_drive_losses,
-    without_effects,
-)
+from thruster_fdd_shore.core.discrepancy.fit import BASE_FIT, BASE_RANGE, lacking_drive_losses
 from thruster_fdd_shore.core.discrepancy.measure import Measured
-from thruster_fdd_shore.core.sim.config import SimConfig, set_effect
+from thruster_fdd_shore.core.sim.config import SimConfig, set_effect, without_effects
 from thruster_fdd_shore.core.sim.effects import EFFECTS, make_effect
 from thruster_fdd_shore.core.sim.plant import RAD_S_TO_RPM
 

@@ -223,7 +223,7 @@ def rest(result: Result, data: Measured, sim_after: dict) -> dict:
     ]
     return {
         "structured": is_structured,
-        "score": excess(result.scored, data),
+        "score": excess(result.scored, data, result.policy),
         "kind": KINDS[kind] if kind else None,
         "gains": {g: {"gain": v[0], "se": v[1]} for g, v in result.rest.items()},
         "where": where if is_structured else [],

@@ -13,6 +13,7 @@ YAML layout (see docs/simulator.md)::
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
@@ -243,6 +244,15 @@ def set_effect(config: SimConfig, effect: Effect) -> SimConfig:
     if config.effect(effect.name) is None:
         return add_effect(config, effect)
     return replace_effect(config, effect)
+
+
+def without_effects(config: SimConfig, names: Collection[str]) -> SimConfig:
+    """``config`` without the effects ``names``; without ``esc_lag`` also without a second ESC
+    stage (a fraction of it, it would become the lag)."""
+    config = replace(config, effects=tuple(e for e in config.effects if e.name not in names))
+    if "esc_lag" in names and config.structure.esc_tau2_s > 0.0:
+        config = replace(config, structure=replace(config.structure, esc_tau2_s=0.0))
+    return config
 
 
 def perturb_unit(config: SimConfig, seed: int) -> SimConfig:

@@ -21,13 +21,13 @@ import numpy as np
 from scipy.signal import lfilter
 
 from thruster_fdd.core.traces.data import Trace
-from thruster_fdd_shore.core.discrepancy.moves import start_config
 from thruster_fdd_shore.core.sim.config import (
     Measurement,
     SimConfig,
     load_config,
     perturb_unit,
     set_effect,
+    without_effects,
 )
 from thruster_fdd_shore.core.sim.effects import make_effect
 from thruster_fdd_shore.core.sim.physics import simulate
@@ -207,7 +207,7 @@ def make_case(
         absent = tuple(
             dict.fromkeys(a for n in hidden for a in ABSENT.get(n, ()) if a not in hidden)
         )
-    base, _ = start_config(load_config("t100"), absent)
+    base = without_effects(load_config("t100"), absent)
     rng = np.random.default_rng([seed, 0xCA5E])
     truth = base
     for name in hidden:
@@ -222,7 +222,7 @@ def make_case(
     # The unit depends on the seed alone (perturb_unit), not on the measurement model.
     clean = simulate(replace(truth, measurement=Measurement()), t, command, seed=seed)
     unit = perturb_unit(truth, seed)
-    start, _ = start_config(base, hidden)
+    start = without_effects(base, hidden)
     values = {}
     for name in hidden:
         effect = unit.effect(name)
