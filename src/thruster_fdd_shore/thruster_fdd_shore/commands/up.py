@@ -92,9 +92,10 @@ RECORDED_TOPICS = ("esc/telemetry", "fdd/residual", "fdd/diagnosis")
 """Per-thruster topics the recorder must report before the drivers publish: the bag then
 holds every sample the live models used, so ``replay`` and ``diagnose`` reproduce them."""
 
-NEIGHBOUR_DISCOVERY_S = 3.0
+NEIGHBOUR_DISCOVERY_S = 6.0
 """How long ``up`` listens on its ROS domain for nodes of the names it would start before it
-starts any, s (DDS discovery of a running graph took 0.1-2.7 s on a busy 2-core machine)."""
+starts any, s, counted from when its own node joins (the input checks run meanwhile). Node
+names of a graph that other processes just left can take over 3 s to arrive."""
 
 UP_NODE = "thruster_fdd_up"
 """The name of ``up``'s own node (the live table's), by which a second ``up`` finds it."""
