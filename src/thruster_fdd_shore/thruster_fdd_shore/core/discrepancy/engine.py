@@ -52,7 +52,6 @@ from thruster_fdd_shore.core.discrepancy.score import (
     gain_of,
     rest_of,
     weights,
-    where_claimed,
 )
 from thruster_fdd_shore.core.sim.config import SimConfig
 
@@ -316,7 +315,7 @@ def _contradicted(without: Scored, current: Scored, name, data, anchor, policy, 
     of another kind (a throttle curve) does not make a start effect look superfluous."""
     claim = evaluate((None, current, data, anchor, policy, name))
     w = weights(current.r, data)
-    without = replace(without, active=where_claimed(claim, name, data, policy))
+    without = replace(without, active=claim.active)
     j = judge(Move("remove", name), without, claim, data, w, policy, moves)
     return j.accepted, claim
 

@@ -115,7 +115,8 @@ class Scored:
         Normalised residual of every sample from the fold holding it out, without and with
         the static generic correction.
     active : np.ndarray of bool, shape (n,), or None
-        For a move of one effect: where that effect acts.
+        For an addition or a base change, where it acts; for a claim (``evaluate``'s
+        ``fixed``), where the claimed effect acts.
     """
 
     spec: Spec
@@ -202,13 +203,15 @@ def evaluate(job: tuple) -> Scored:
     """Calibrate a model on every fold; ``job`` = (move or None, parent or None, data, anchor,
     policy, fixed): the parent's model with ``move`` made, from the parent's fold fits and
     from them with the anchor's base (``moves.cold``), the better kept; with ``fixed`` (an
-    effect name) that effect is held at the anchor's values (its claim)."""
+    effect name) that effect is held at the anchor's values (its claim), and ``active`` says
+    where it acts."""
     move, parent, data, anchor, policy, fixed = job
     phi = basis(data)
     n = len(data.t)
     r, r_g = np.zeros((3, n)), np.zeros((3, n))
     seen = _seen(data)
-    active = np.zeros(n, bool) if move is not None and move.kind != "remove" else None
+    acting = fixed is not None or (move is not None and move.kind != "remove")
+    active = np.zeros(n, bool) if acting else None
     folds = []
     spec = Spec() if parent is None else parent.spec
     if parent is not None and move is not None:
@@ -249,8 +252,8 @@ def evaluate(job: tuple) -> Scored:
         r[:, fold.held] = res[:, fold.held]
         r_g[:, fold.held] = corrected(res, seen, fold.fit, fold.held, phi)[:, fold.held]
         if active is not None:
-            moved = acts(sim, undo(move, fit.config, base), data, policy)
-            active[fold.held] = moved[fold.held]
+            other = without_effects(fit.config, (fixed,)) if fixed else undo(move, fit.config, base)
+            active[fold.held] = acts(sim, other, data, policy)[fold.held]
     return Scored(spec, tuple(folds), r, r_g, active)
 
 
@@ -260,16 +263,6 @@ def acts(sim: dict, other: SimConfig, data: Measured, policy: Policy) -> np.ndar
     sim0 = simulate_model(other, data)
     moved = np.stack([np.abs(sim[c] - sim0[c]) / data.sigma[c] for c in CHANNELS])
     return np.any(moved > policy.active_sigma, axis=0)
-
-
-def where_claimed(claim: Scored, name: str, data: Measured, policy: Policy) -> np.ndarray:
-    """Where effect ``name`` acts in ``claim``'s held-out predictions, shape (n,)."""
-    out = np.zeros(len(data.t), bool)
-    for held, fit in zip(policy.folds, claim.folds, strict=True):
-        mask = with_held(data, held).held
-        sim = simulate_model(fit.config, data)
-        out[mask] = acts(sim, without_effects(fit.config, (name,)), data, policy)[mask]
-    return out
 
 
 def excess(current: Scored, data: Measured, policy: Policy) -> float:
