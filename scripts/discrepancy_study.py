@@ -53,6 +53,7 @@ from thruster_fdd_shore.core.discrepancy.report import (
     friction_currents,
     report_json,
 )
+from thruster_fdd_shore.core.discrepancy.where import gap
 from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_DURATION_S,
     MISMATCH_HIDDEN,
@@ -160,7 +161,11 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
     case = make_job_case(family, hidden, superfluous, seed, duration)
     t0 = time.perf_counter()
     result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
-    rep = report_json(result, data, simulate_model(result.final.config, data))
+    sims = {
+        "before": simulate_model(result.start.config, data),
+        "after": simulate_model(result.final.config, data),
+    }
+    rep = report_json(result, data, sims)
     model_error = [_model_error(f.config, case.clean, data) for f in (result.start, result.final)]
     errors = {}
     for name, params in case.hidden.items():
@@ -183,8 +188,8 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "verdict": result.verdict,
         "param_error": errors,
         "friction_current_error": friction_current,
-        "score_before": result.start.gap.score,
-        "score_after": result.final.gap.score,
+        "score_before": gap(sims["before"], data)["score"],
+        "score_after": gap(sims["after"], data)["score"],
         "model_error_before": model_error[0],
         "model_error_after": model_error[1],
         "gap_before": rep["gap_before"],

@@ -21,7 +21,7 @@ from thruster_fdd_shore.core.discrepancy.measure import (
     supply_voltage,
     with_held,
 )
-from thruster_fdd_shore.core.discrepancy.moves import start_config
+from thruster_fdd_shore.core.discrepancy.moves import BASE_CHANGES, Move, Spec, made, start_config
 from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_SWITCHES,
     PLAUSIBLE,
@@ -144,6 +144,40 @@ def test_start_config_drop() -> None:
     assert "slew_rate_limit" in warnings[0]
     with pytest.raises(ValueError, match="unknown effect"):
         start_config(t100, ["warp_drive"])
+
+
+@pytest.mark.parametrize("change", BASE_CHANGES)
+def test_undoing_a_base_change_takes_back_what_it_changed(change: str) -> None:
+    """An exchange undoes a base change: the spec no longer holds it nor the bounds it set, and
+    the model starts from the anchor's values of every term the change set or freed (the
+    second stage's delay returned to the lag; widened parameters back within their bounds),
+    other terms as fitted."""
+    anchor = load_config("t100")
+    config, _ = start_config(anchor, ["deadband"])
+    case = make_case((), 3, duration_s=DURATION_S)
+    data = prepare_measured(case.trace, case.start)
+    moved = replace(
+        config,
+        params=replace(config.params, k_q=config.params.k_q * 3.0, r_speed_ohm_s=1e-3),
+        structure=replace(config.structure, esc_tau2_s=0.05, i_idle_per_krpm_a=0.1),
+    )
+    spec = Move("base", change).spec(Spec(), moved, anchor)
+    assert spec.changes == (change,)
+    undone = Move("undo", change)
+    assert undone.spec(spec, moved, anchor) == Spec()
+    (start,) = undone.starts(moved, data, anchor)
+    if change == "widen bounds":
+        assert start.params.k_q == pytest.approx(anchor.params.k_q * BASE_RANGE)
+        assert start.params.r_speed_ohm_s == moved.params.r_speed_ohm_s
+    else:
+        for key in made(change, anchor):
+            owner, name = key.split(".")
+            assert getattr(getattr(start, owner), name) == getattr(getattr(anchor, owner), name)
+        assert start.params.k_q == moved.params.k_q
+    if change == "second ESC stage":
+        lag = moved.effect("esc_lag").tau_s + moved.structure.esc_tau2_s
+        assert start.effect("esc_lag").tau_s == pytest.approx(lag)
+    assert undone.size(anchor) == 0
 
 
 def _short_trace(duration: float = 60.0):

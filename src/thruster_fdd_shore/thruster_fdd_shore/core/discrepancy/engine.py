@@ -19,8 +19,10 @@ One score, one acceptance rule, one loop:
   and when no move is accepted, a backward step removes what no longer earns its place (and
   the forward steps go on if it removed anything); a start effect only when the data
   contradict its claimed values: its removal passes the acceptance rule against the claim,
-  where the claim acts (a limit that never binds stays) and beyond the generic correction. At
-  the end a removed start effect the final model does not contradict is restored.
+  where the claim acts (a limit that never binds stays) and beyond the generic correction.
+  When that removes nothing either, an exchange offers each adopted base change's place to
+  the other moves. At the end a removed start effect the final model does not contradict is
+  restored.
 
 A block bootstrap of the recorded gains gives each choice its selection frequency and the
 weights of the moves within the score's uncertainty of it; the fold fits give every named
@@ -216,9 +218,43 @@ def search(
     say(f"start calibrated on {len(policy.folds)} folds")
     steps: list[Step] = []
 
-    def run(moves: list[Move], desc: str) -> list[Scored]:
-        jobs = [(m, current, data, anchor, policy, None) for m in moves]
+    def run(moves: list[Move], desc: str, parent: Scored | None = None) -> list[Scored]:
+        jobs = [(m, parent or current, data, anchor, policy, None) for m in moves]
         return _run(jobs, workers, progress, desc)
+
+    def exchange() -> bool:
+        """Offer each adopted base change's place to another move: the change undone and the
+        accepted move of largest gain made there instead, taken when that model scores higher
+        than the current one, or within the score's uncertainty of it with fewer parameters
+        (as a forward step prefers). A flexible change taken early, while an effect or another
+        change was still missing, may stand in for them. Whether it exchanged."""
+        nonlocal current
+        for change in current.spec.changes:
+            undone = run([Move("undo", change)], f"undo {change}")[0]
+            others = [m for m in available(undone.spec, undone.folds[0].config, anchor)
+                      if m.label != change]  # fmt: skip
+            outs = run(others, f"in place of {change}", undone)
+            w = weights(undone.r, data)
+            judged = tuple(
+                judge(m, o, undone, data, w, policy, len(others))
+                for m, o in zip(others, outs, strict=True)
+            )
+            ok = [(m, j, o) for m, j, o in zip(others, judged, outs, strict=True) if j.accepted]
+            if not ok:
+                continue
+            move, j, swapped = max(ok, key=lambda mjo: mjo[1].gain)
+            w = weights(current.r, data)
+            ahead = policy.test(gain_of(swapped.r, current.r, data, w), len(others))
+            behind = policy.test(gain_of(current.r, swapped.r, data, w), len(others))
+            size = (move.size(anchor), Move("base", change).size(anchor))
+            within = not behind[2] and (size[0] < size[1] or (size[0] == size[1] and ahead[0] > 0))
+            if not (ahead[2] or within):
+                continue
+            steps.append(Step("exchange", judged, f"{change} -> {j.move}"))
+            say(f"exchanged {change} for {j.move}")
+            current = swapped
+            return True
+        return False
 
     def backward(just: str | None) -> bool:
         """Remove, one at a time, what no longer earns its place; an effect of the start only
@@ -265,7 +301,7 @@ def search(
         # When no move earns its place, what the model holds is judged: a removal judged
         # while an effect is still missing would be credited with the missing effect's work.
         if not moves:
-            if backward(None):
+            if backward(None) or exchange():
                 continue
             break
         outs = run(moves, f"step {len(steps) + 1}: {len(moves)} moves")
@@ -282,7 +318,7 @@ def search(
         ok = [(j, o) for j, o in zip(judged, outs, strict=True) if j.accepted]
         if not ok:
             steps.append(Step("forward", judged, None))
-            if backward(None):
+            if backward(None) or exchange():
                 continue
             break
         top, top_scored = max(ok, key=lambda jo: jo[0].gain)

@@ -18,9 +18,7 @@ from threadpoolctl import threadpool_limits
 
 from thruster_fdd_shore.core.discrepancy.measure import (
     CHANNELS,
-    Gap,
     Measured,
-    gap,
     simulate_model,
     weighted_residuals,
 )
@@ -83,8 +81,6 @@ class Fit:
         autocorrelation).
     bic : float
         Bayesian information criterion on the fit samples.
-    gap : Gap
-        Held-out gap.
     n_sims : int
         Simulations spent.
     """
@@ -94,7 +90,6 @@ class Fit:
     values: np.ndarray
     std: np.ndarray
     bic: float
-    gap: Gap
     n_sims: int
 
     def uncertainty(self, key: str) -> float:
@@ -367,8 +362,7 @@ def calibrate(
             xtol=1e-4,
         )
     best = build(sol.x)
-    sim = simulate_model(best, data)
-    res = weighted_residuals(sim, data)
+    res = weighted_residuals(simulate_model(best, data), data)
     fitted = values_of(sol.x)
     values = np.array([fitted[s.key] for s in specs])
     dof = max(len(sol.fun) - len(specs), 1)
@@ -384,6 +378,5 @@ def calibrate(
         values=values,
         std=dvalue,
         bic=_bic(res, data.fit, len(specs)),
-        gap=gap(sim, data),
         n_sims=count[0] + 1,
     )

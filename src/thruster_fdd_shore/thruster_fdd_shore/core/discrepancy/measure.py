@@ -1,8 +1,8 @@
 """What a measured trace says, and where a model disagrees with it.
 
 ``prepare_measured`` turns a measured trace into ``Measured`` (despiked, per-channel noise
-level, fit / held-out blocks); ``simulate_model`` and ``gap`` compare a configuration with it per
-channel (``where`` says where the difference lies).
+level, fit / held-out blocks); ``simulate_model`` and ``weighted_residuals`` compare a
+configuration with it per channel (``where`` says where the difference lies).
 """
 
 from __future__ import annotations
@@ -92,39 +92,6 @@ def with_held(data: Measured, blocks: tuple[int, ...]) -> Measured:
     return replace(data, fit=~held, held=held)
 
 
-@dataclass(frozen=True)
-class Gap:
-    """Simulation-to-measurement gap on the held-out samples.
-
-    Attributes
-    ----------
-    rpm_rmse, current_rmse : float
-        Root mean squared error (rpm, A), with the model reported as the telemetry would be.
-    rpm_r2, current_r2 : float
-        Coefficient of determination.
-    voltage_rmse : float
-        Bus voltage RMSE, V (not part of report.json's gap).
-    score : float
-        Mean over channels of the mean squared residual in noise-variance units (1 is noise).
-    """
-
-    rpm_rmse: float
-    current_rmse: float
-    rpm_r2: float
-    current_r2: float
-    voltage_rmse: float
-    score: float
-
-    def public(self) -> dict[str, float]:
-        """The four keys of report.json's ``gap_before`` / ``gap_after``."""
-        return {
-            "rpm_rmse": self.rpm_rmse,
-            "current_rmse": self.current_rmse,
-            "rpm_r2": self.rpm_r2,
-            "current_r2": self.current_r2,
-        }
-
-
 MOVING = 0.05
 """Least share of samples in which a channel's value changes for its grid to be a sensor's."""
 
@@ -192,10 +159,9 @@ FOLLOWS: dict[str, Follows] = {
     "current": Follows(sign=1.0, magnitude=True, peaks=True),
     "voltage": Follows(sign=-1.0, magnitude=True, peaks=True),
 }
-"""The speed moves with the signed command and, through the rotor's inertia, is monotone
-after a step and through a reversal; the bus current moves with the command's magnitude and
-peaks for a sample after a step on a fast thruster (t200: 0.1 s ESC lag, 0.1 ohm) or dips
-when the rotor brakes; the bus voltage sags against it."""
+"""The speed follows the signed command and, through the rotor's inertia, is monotone after a
+step; the bus current follows its magnitude and may peak for a sample after a step or dip when
+the rotor brakes; the bus voltage sags against it."""
 
 
 def _command_moves(command: np.ndarray, follows: Follows) -> np.ndarray:
@@ -297,7 +263,7 @@ def prepare_measured(trace: Trace, config: SimConfig) -> Measured:
 
     Raises
     ------
-    ValueError
+    BadInputError
         If the trace is too short, holds non-finite values or never moves the thruster.
     """
     n = len(trace.t)
@@ -351,9 +317,8 @@ def supply_voltage(data: Measured, r_internal_ohm: float) -> np.ndarray:
 
     ``V_supply = rolling median over SUPPLY_WINDOW_S of (V_bus + r_internal_ohm * I)``, rounded
     to 10 mV: slow supply changes (battery, bench set-points) are followed, the fast drop with
-    current is left to the model's ``voltage_sag``. The window is mirrored at the trace's ends:
-    padding with the end sample (``nearest``) let that one noisy sample be the median of the
-    first and last half-window (0.44 noise levels rms over a 60 s trace of a constant supply).
+    current is left to the model's ``voltage_sag``. The window is mirrored at the trace's ends,
+    so that no single end sample becomes the median of a half-window.
     """
     key = (hash(data.voltage.tobytes()), hash(data.current.tobytes()), data.window, r_internal_ohm)
     if key not in _SUPPLY:
@@ -366,7 +331,7 @@ def supply_voltage(data: Measured, r_internal_ohm: float) -> np.ndarray:
 
 _SUPPLY: dict[tuple, np.ndarray] = {}
 """The last reconstructions by measurement and resistance: a search simulates thousands of
-models that share one sag resistance, and the median filter cost a sixth of each run."""
+models that share one sag resistance."""
 
 
 def noise_free(config: SimConfig) -> SimConfig:
@@ -427,37 +392,3 @@ def weighted_residuals(sim: dict[str, np.ndarray], data: Measured) -> dict[str, 
         res["rpm"] = np.where(seen["rpm"], res["rpm"], -excess)
         res["current"] = np.where(seen["current"], res["current"], 0.0)
     return res
-
-
-def _r2(y: np.ndarray, e: np.ndarray) -> float:
-    ss = float(np.sum((y - y.mean()) ** 2))
-    return 1.0 - float(np.sum(e**2)) / ss if ss > 0.0 else math.nan
-
-
-def gap(sim: dict[str, np.ndarray], data: Measured, mask: np.ndarray | None = None) -> Gap:
-    """Gap between a simulation and the measurement on ``mask`` (default: held-out samples).
-
-    ``Gap.score`` is the mean over channels of the squared weighted residual summed over
-    ``mask`` and divided by the samples there that the reporting floor does not censor, in
-    noise variances. A censored sample's residual is the model's excess over the floor
-    (``weighted_residuals``), 0 for a right model: dividing by it too let a right model score
-    about 0.92 on a slow trace, under the noise level the search stops at.
-    """
-    mask = data.held if mask is None else mask
-    rep = reported(sim, data)
-    err = {c: (data.channel(c) - rep[c])[mask] for c in CHANNELS}
-    res = weighted_residuals(sim, data)
-    seen = _uncensored(data)
-    per_channel = [
-        np.sum(res[c][mask] ** 2) / max(int(np.sum(seen[c][mask])), 1) / data.sigma[c] ** 2
-        for c in CHANNELS
-    ]
-    score = float(np.mean(per_channel))
-    return Gap(
-        rpm_rmse=float(np.sqrt(np.mean(err["rpm"] ** 2))),
-        current_rmse=float(np.sqrt(np.mean(err["current"] ** 2))),
-        rpm_r2=_r2(data.rpm[mask], err["rpm"]),
-        current_r2=_r2(data.current[mask], err["current"]),
-        voltage_rmse=float(np.sqrt(np.mean(err["voltage"] ** 2))),
-        score=score,
-    )

@@ -113,7 +113,8 @@ winding loss fitted within ``WIDE_RANGE``."""
 @dataclass(frozen=True)
 class Move:
     """One change of a model: ``kind`` is ``add`` (an effect of the vocabulary), ``remove``
-    (an effect the model holds) or ``base`` (one of ``BASE_CHANGES``); ``name`` says which."""
+    (an effect the model holds), ``base`` (one of ``BASE_CHANGES``) or ``undo`` (a base change
+    the model made); ``name`` says which."""
 
     kind: str
     name: str
@@ -123,7 +124,7 @@ class Move:
         parameter for a widening, one for another base change."""
         if self.kind == "add":
             return len(fields(EFFECTS[self.name]))
-        if self.kind == "remove":
+        if self.kind in ("remove", "undo"):
             return 0
         if self.name == "drive losses":
             return len(lacking_drive_losses(anchor))
@@ -146,6 +147,10 @@ class Move:
             if self.name in spec.added:
                 return replace(spec, added=tuple(n for n in spec.added if n != self.name))
             return replace(spec, removed=(*spec.removed, self.name))
+        if self.kind == "undo":
+            changes = tuple(c for c in spec.changes if c != self.name)
+            ranges = {k: v for k, v in spec.ranges.items() if k not in made(self.name, anchor)}
+            return replace(spec, changes=changes, ranges=ranges)
         ranges = dict(spec.ranges)
         if self.name == "widen bounds":
             ranges.update(dict.fromkeys(at_bound(fitted, anchor, spec.ranges), WIDE_RANGE))
@@ -155,8 +160,9 @@ class Move:
             ranges["params.r_speed_ohm_s"] = WIDE_RANGE
         return replace(spec, changes=(*spec.changes, self.name), ranges=ranges)
 
-    def starts(self, config: SimConfig, data: Measured) -> list[SimConfig]:
-        """``config`` (a calibrated model) with the move made, once per starting value."""
+    def starts(self, config: SimConfig, data: Measured, anchor: SimConfig) -> list[SimConfig]:
+        """``config`` (a calibrated model) with the move made, once per starting value (an
+        undone base change's terms at the ``anchor``'s values)."""
         if self.kind == "add":
             return [
                 set_effect(config, make_effect(self.name, g))
@@ -164,6 +170,15 @@ class Move:
             ]
         if self.kind == "remove":
             return [without_effects(config, (self.name,))]
+        if self.kind == "undo" and self.name == "widen bounds":
+            values = {
+                n: min(max(getattr(config.params, n), a / BASE_RANGE), a * BASE_RANGE)
+                for n in BASE_FIT
+                if (a := getattr(anchor.params, n)) > 0.0
+            }
+            return [replace(config, params=replace(config.params, **values))]
+        if self.kind == "undo":
+            return [undo(Move("base", self.name), config, anchor, made(self.name, anchor))]
         structure, params = config.structure, config.params
         if self.name == "other braking law":
             return [replace(config, structure=replace(structure, regen=not structure.regen))]
@@ -192,13 +207,21 @@ UNDONE = {
 """What a base change changes: the terms ``undo`` takes back."""
 
 
-def undo(move: Move, config: SimConfig, before: SimConfig) -> SimConfig:
+def made(change: str, anchor: SimConfig) -> tuple[str, ...]:
+    """The terms base change ``change`` sets or frees on ``anchor``: ``UNDONE``'s, of the drive
+    losses those the anchor lacks."""
+    return lacking_drive_losses(anchor) if change == "drive losses" else UNDONE[change]
+
+
+def undo(
+    move: Move, config: SimConfig, before: SimConfig, keys: tuple[str, ...] | None = None
+) -> SimConfig:
     """``config`` (fitted with ``move``, an addition or a base change) with what the move
-    changed taken back to ``before`` (the model it was made on): where the two differ is where
-    the move acts."""
+    changed (``keys``, default ``UNDONE``'s) taken back to ``before`` (the model it was made
+    on): where the two differ is where the move acts."""
     if move.kind == "add":
         return without_effects(config, (move.name,))
-    keys = UNDONE[move.name]
+    keys = UNDONE[move.name] if keys is None else keys
     params = {
         k.split(".")[1]: getattr(before.params, k.split(".")[1])
         for k in keys
@@ -219,15 +242,14 @@ def undo(move: Move, config: SimConfig, before: SimConfig) -> SimConfig:
 
 
 def at_bound(config: SimConfig, anchor: SimConfig, ranges: dict[str, float]) -> list[str]:
-    """Base parameters (``params.NAME``) of ``config`` within 5 % of their ``BASE_RANGE``
-    bound around ``anchor`` and not yet widened (``i_idle_a`` has physical bounds)."""
+    """Base parameters (``params.NAME``) of ``config`` within 5 % of their bound around
+    ``anchor``: ``BASE_RANGE``, or their factor in ``ranges`` (``i_idle_a`` has physical
+    bounds)."""
     out = []
-    for name in BASE_FIT:
+    for name in (n for n in BASE_FIT if n != "i_idle_a"):
         key = f"params.{name}"
-        if name == "i_idle_a" or key in ranges:
-            continue
         ratio = abs(math.log(getattr(config.params, name) / getattr(anchor.params, name)))
-        if ratio >= math.log(BASE_RANGE / 1.05):
+        if ratio >= math.log(ranges.get(key, BASE_RANGE) / 1.05):
             out.append(key)
     return out
 

@@ -9,24 +9,25 @@ else, before the workflow runs.
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 
 from thruster_fdd.core.atomic import replaced_dir, write_text
 from thruster_fdd.core.errors import BadInputError
+from thruster_fdd_shore.core.discrepancy import moves
 from thruster_fdd_shore.core.discrepancy.correction import KINDS
 from thruster_fdd_shore.core.discrepancy.engine import Result, policy_dict, structured
-from thruster_fdd_shore.core.discrepancy.fit import BASE_FIT, BASE_RANGE
+from thruster_fdd_shore.core.discrepancy.fit import BASE_RANGE
 from thruster_fdd_shore.core.discrepancy.measure import (
     Measured,
     reported,
     simulate_model,
     weighted_residuals,
 )
-from thruster_fdd_shore.core.discrepancy.moves import UNDONE
 from thruster_fdd_shore.core.discrepancy.score import excess
-from thruster_fdd_shore.core.discrepancy.where import describe, regions, signatures
+from thruster_fdd_shore.core.discrepancy.where import describe, gap, regions, signatures
 from thruster_fdd_shore.core.json_text import json_text
 from thruster_fdd_shore.core.sim.config import SimConfig, dump_config
 
@@ -60,82 +61,61 @@ def check_out_dir(out: str | Path) -> None:
             )
 
 
-def _plots(_result: Result, data: Measured, sims: dict[str, dict], out: Path) -> list[str]:
+def _plots(data: Measured, sims: dict[str, dict], out: Path) -> list[str]:
+    """overlay.png, residual_vs_command.png and hysteresis.png of the start (``before``) and
+    final (``after``) models on held-out data (up to 90 s of the middle held-out block)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = []
-    held_idx = np.flatnonzero(data.held)
-    breaks = np.flatnonzero(np.diff(held_idx) > 1) + 1
-    blocks = np.split(held_idx, breaks)
-    block = blocks[len(blocks) // 2]
-    seg = block[(data.t[block] - data.t[block[0]]) <= 90.0]
-    colors = {"measured": "k", "before": "tab:red", "after": "tab:blue"}
+    held = np.flatnonzero(data.held)
+    blocks = np.split(held, np.flatnonzero(np.diff(held) > 1) + 1)
+    seg = blocks[len(blocks) // 2]
+    seg = seg[data.t[seg] - data.t[seg[0]] <= 90.0]
+    colors = {"before": "tab:red", "after": "tab:blue"}
+    rep = {k: reported(sim, data) for k, sim in sims.items()}
+    units = (("rpm", "rpm"), ("current", "A"))
+
+    def save(fig, name: str, title: str) -> str:
+        fig.suptitle(title)
+        fig.tight_layout()
+        fig.savefig(out / name, dpi=110)
+        plt.close(fig)
+        return name
 
     fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for ax, ch, unit in ((axes[0], "rpm", "rpm"), (axes[1], "current", "A")):
-        ax.plot(
-            data.t[seg], data.channel(ch)[seg], color=colors["measured"], lw=1.0, label="measured"
-        )
-        for key in ("before", "after"):
-            ax.plot(
-                data.t[seg],
-                reported(sims[key], data)[ch][seg],
-                color=colors[key],
-                lw=1.0,
-                label=f"model {key}",
-            )
+    for ax, (ch, unit) in zip(axes, units, strict=True):
+        ax.plot(data.t[seg], data.channel(ch)[seg], color="k", lw=1.0, label="measured")
+        for key, color in colors.items():
+            ax.plot(data.t[seg], rep[key][ch][seg], color=color, lw=1.0, label=f"model {key}")
         ax.set_ylabel(f"{ch} ({unit})")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="best", fontsize=8)
     axes[1].set_xlabel("t (s), held-out data")
-    fig.suptitle("Overlay before / after the added effects (held-out)")
-    fig.tight_layout()
-    fig.savefig(out / "overlay.png", dpi=110)
-    plt.close(fig)
-    names.append("overlay.png")
+    names = [save(fig, "overlay.png", "Overlay before / after the added effects (held-out)")]
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
-    for col, key in enumerate(("before", "after")):
+    for col, (key, color) in enumerate(colors.items()):
         res = weighted_residuals(sims[key], data)
-        for row, (ch, unit) in enumerate((("rpm", "rpm"), ("current", "A"))):
+        for row, (ch, unit) in enumerate(units):
             ax = axes[row, col]
-            ax.scatter(
-                data.command[data.held], res[ch][data.held], s=2, alpha=0.4, color=colors[key]
-            )
+            ax.scatter(data.command[data.held], res[ch][data.held], s=2, alpha=0.4, color=color)
             ax.axhline(0.0, color="k", lw=0.5)
-            ax.set_ylabel(f"{ch} residual ({unit})")
+            ax.set(ylabel=f"{ch} residual ({unit})", xlabel="command" if row else "")
             ax.set_title(f"model {key}", fontsize=9)
             ax.grid(alpha=0.3)
-    for ax in axes[1]:
-        ax.set_xlabel("command")
-    fig.suptitle("Residual (measured - model) against command, held-out")
-    fig.tight_layout()
-    fig.savefig(out / "residual_vs_command.png", dpi=110)
-    plt.close(fig)
-    names.append("residual_vs_command.png")
+    title = "Residual (measured - model) against command, held-out"
+    names.append(save(fig, "residual_vs_command.png", title))
 
     fig, ax = plt.subplots(figsize=(6, 5))
     ax.plot(data.command[seg], data.rpm[seg], color="k", lw=1.0, label="measured")
-    for key in ("before", "after"):
-        ax.plot(
-            data.command[seg],
-            reported(sims[key], data)["rpm"][seg],
-            color=colors[key],
-            lw=1.0,
-            label=f"model {key}",
-        )
-    ax.set_xlabel("command")
-    ax.set_ylabel("rpm")
-    ax.set_title("Command-rpm loop (hysteresis), held-out")
+    for key, color in colors.items():
+        ax.plot(data.command[seg], rep[key]["rpm"][seg], color=color, lw=1.0, label=f"model {key}")
+    ax.set(xlabel="command", ylabel="rpm")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "hysteresis.png", dpi=110)
-    plt.close(fig)
-    names.append("hysteresis.png")
+    names.append(save(fig, "hysteresis.png", "Command-rpm loop (hysteresis), held-out"))
     return names
 
 
@@ -162,7 +142,10 @@ def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
-BASE_VALUES = {**UNDONE, "second ESC stage": (*UNDONE["second ESC stage"], "esc_lag.tau_s")}
+BASE_VALUES = {
+    **moves.UNDONE,
+    "second ESC stage": (*moves.UNDONE["second ESC stage"], "esc_lag.tau_s"),
+}
 """Values a base change is reported with: the terms it changes (``moves.UNDONE``), the lag the
 second stage shortens; for ``widen bounds`` only the parameters it widened."""
 
@@ -189,15 +172,12 @@ def base_changes(result: Result) -> list[dict]:
 
 def at_bound(result: Result) -> list[str]:
     """Base parameters of the final model within 5 % of their calibration bound, described."""
+    config, anchor, ranges = result.final.config, result.anchor, result.scored.spec.ranges
     out = []
-    for name in BASE_FIT:
-        if name == "i_idle_a":
-            continue
-        value = float(getattr(result.final.config.params, name))
-        ref = float(getattr(result.anchor.params, name))
-        factor = result.scored.spec.ranges.get(f"params.{name}", BASE_RANGE)
-        if abs(math.log(value / ref)) >= math.log(factor / 1.05):
-            out.append(f"{name} {_fmt(value)} (start {_fmt(ref)}, bound x{factor:g})")
+    for key in moves.at_bound(config, anchor, ranges):
+        value, ref = (_value(c, key) for c in (config, anchor))
+        factor = ranges.get(key, BASE_RANGE)
+        out.append(f"{key.split('.')[1]} {_fmt(value)} (start {_fmt(ref)}, bound x{factor:g})")
     return out
 
 
@@ -231,9 +211,15 @@ def rest(result: Result, data: Measured, sim_after: dict) -> dict:
     }
 
 
-def report_json(result: Result, data: Measured, sim_after: dict) -> dict:
-    """The report.json mapping (docs/contracts.md)."""
+GAP_KEYS = ("rpm_rmse", "current_rmse", "rpm_r2", "current_r2")
+"""The keys of report.json's ``gap_before`` / ``gap_after`` (``where.gap``)."""
+
+
+def report_json(result: Result, data: Measured, sims: dict[str, dict]) -> dict:
+    """The report.json mapping (docs/contracts.md); ``sims``: the start's (``before``) and the
+    final model's (``after``) simulations."""
     final, start = result.final, result.start
+    gaps = {k: gap(sims[k], data) for k in ("before", "after")}
     missing = []
     for name in result.added:
         params = final.config.effect(name).params()
@@ -266,12 +252,12 @@ def report_json(result: Result, data: Measured, sim_after: dict) -> dict:
         "verdict": result.verdict,
         "missing_effects": missing,
         "superfluous_effects": superfluous,
-        "gap_before": start.gap.public(),
-        "gap_after": final.gap.public(),
+        "gap_before": {k: gaps["before"][k] for k in GAP_KEYS},
+        "gap_after": {k: gaps["after"][k] for k in GAP_KEYS},
         "base_changes": base_changes(result),
         "at_bound": at_bound(result),
         "alternatives": alternatives,
-        "rest": rest(result, data, sim_after),
+        "rest": rest(result, data, sims["after"]),
         "policy": policy_dict(result.policy),
     }
 
@@ -382,19 +368,7 @@ def details(result: Result, data: Measured, sims: dict) -> dict:
                 "frequency": s.frequency,
                 "alternatives": s.alternatives,
                 "moves": [
-                    {
-                        k: getattr(j, k)
-                        for k in (
-                            "move",
-                            "gain",
-                            "se",
-                            "significant",
-                            "where",
-                            "beyond",
-                            "deficit",
-                            "accepted",
-                        )
-                    }
+                    {f.name: getattr(j, f.name) for f in fields(j) if f.name != "d"}
                     for j in s.judged
                 ],
             }
@@ -404,8 +378,8 @@ def details(result: Result, data: Measured, sims: dict) -> dict:
         "signatures_after": signatures(sims["after"], data),
         "regions_before": [r.__dict__ for r in regions(sims["before"], data, data.held)],
         "regions_after": [r.__dict__ for r in regions(sims["after"], data, data.held)],
-        "gap_score_before": result.start.gap.score,
-        "gap_score_after": result.final.gap.score,
+        "gap_score_before": gap(sims["before"], data)["score"],
+        "gap_score_after": gap(sims["after"], data)["score"],
         "fitted": dict(zip(result.final.names, result.final.values.tolist(), strict=True)),
     }
 
@@ -425,9 +399,9 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict:
         "before": simulate_model(result.start.config, data),
         "after": simulate_model(result.final.config, data),
     }
-    report = report_json(result, data, sims["after"])
+    report = report_json(result, data, sims)
     with replaced_dir(out) as stage:
-        plots = _plots(result, data, sims, stage)
+        plots = _plots(data, sims, stage)
         write_text(stage / "report.json", json_text(report, nonfinite=lambda _x: None, indent=2))
         dump_config(result.final.config, stage / "model.yaml")
         write_text(stage / "report.md", markdown(result, report, data, plots))

@@ -210,7 +210,7 @@ def evaluate(job: tuple) -> Scored:
     n = len(data.t)
     r, r_g = np.zeros((3, n)), np.zeros((3, n))
     seen = _seen(data)
-    acting = fixed is not None or (move is not None and move.kind != "remove")
+    acting = fixed is not None or (move is not None and move.kind in ("add", "base"))
     active = np.zeros(n, bool) if acting else None
     folds = []
     spec = Spec() if parent is None else parent.spec
@@ -229,7 +229,7 @@ def evaluate(job: tuple) -> Scored:
                 origins = [base, cold(base, anchor)] if add else [base]
             starts = [
                 min(
-                    move.starts(o, fold) if move is not None else [o],
+                    move.starts(o, fold, anchor) if move is not None else [o],
                     key=lambda c: _sse_train(c, fold),
                 )
                 for o in origins

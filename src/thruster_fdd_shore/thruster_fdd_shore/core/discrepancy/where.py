@@ -1,6 +1,7 @@
-"""Where a model disagrees with a measurement: the share of the squared residual in each
-operating region (``regions``) and the cues that point to causes (``signatures``: lag, flat zone,
-clipping, offsets growing with current), read out in plain words by ``describe``."""
+"""Where a model disagrees with a measurement: the held-out gap (``gap``), the share of the
+squared residual in each operating region (``regions``) and the cues that point to causes
+(``signatures``: lag, flat zone, clipping, offsets growing with current), read out in plain
+words by ``describe``."""
 
 from __future__ import annotations
 
@@ -8,10 +9,41 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thruster_fdd_shore.core.discrepancy.measure import Measured, reported, weighted_residuals
+from thruster_fdd_shore.core.discrepancy.measure import (
+    CHANNELS,
+    Measured,
+    _uncensored,
+    reported,
+    weighted_residuals,
+)
 
 TRANSIENT_S = 3.0
 """Samples within this time after a command change count as transient, s."""
+
+
+def gap(sim: dict[str, np.ndarray], data: Measured) -> dict[str, float]:
+    """Gap between a simulation and the measurement on the held-out samples: ``rpm_rmse``,
+    ``current_rmse`` (rpm, A, the model reported as the telemetry would be), ``rpm_r2``,
+    ``current_r2`` (coefficient of determination) and ``score``: the mean over channels of the
+    mean squared residual, in noise variances, over the samples the reporting floor leaves
+    informative (a censored sample's residual is the model's excess over the floor)."""
+    held, rep = data.held, reported(sim, data)
+    res, seen = weighted_residuals(sim, data), _uncensored(data)
+    out = {}
+    for c in ("rpm", "current"):
+        y, e = data.channel(c)[held], (data.channel(c) - rep[c])[held]
+        ss = float(np.sum((y - y.mean()) ** 2))
+        out[f"{c}_rmse"] = float(np.sqrt(np.mean(e**2)))
+        out[f"{c}_r2"] = 1.0 - float(np.sum(e**2)) / ss if ss > 0.0 else float("nan")
+    out["score"] = float(
+        np.mean(
+            [
+                np.sum(res[c][held] ** 2) / max(int(np.sum(seen[c][held])), 1) / data.sigma[c] ** 2
+                for c in CHANNELS
+            ]
+        )
+    )
+    return out
 
 
 @dataclass(frozen=True)
