@@ -51,9 +51,9 @@ from thruster_fdd_shore.core.discrepancy.measure import CHANNELS, Measured, simu
 from thruster_fdd_shore.core.discrepancy.report import (
     FRICTION_UNITS,
     friction_currents,
+    gaps_of,
     report_json,
 )
-from thruster_fdd_shore.core.discrepancy.where import gap
 from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_DURATION_S,
     MISMATCH_HIDDEN,
@@ -165,7 +165,8 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "before": simulate_model(result.start.config, data),
         "after": simulate_model(result.final.config, data),
     }
-    rep = report_json(result, data, sims)
+    gaps = gaps_of(sims, data)
+    rep = report_json(result, data, sims, gaps)
     model_error = [_model_error(f.config, case.clean, data) for f in (result.start, result.final)]
     errors = {}
     for name, params in case.hidden.items():
@@ -188,8 +189,8 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
         "verdict": result.verdict,
         "param_error": errors,
         "friction_current_error": friction_current,
-        "score_before": gap(sims["before"], data)["score"],
-        "score_after": gap(sims["after"], data)["score"],
+        "score_before": gaps["before"]["score"],
+        "score_after": gaps["after"]["score"],
         "model_error_before": model_error[0],
         "model_error_after": model_error[1],
         "gap_before": rep["gap_before"],

@@ -244,8 +244,9 @@ def search(
                 continue
             move, j, swapped = max(ok, key=lambda mjo: mjo[1].gain)
             w = weights(current.r, data)
-            ahead = policy.test(gain_of(swapped.r, current.r, data, w), len(others))
-            behind = policy.test(gain_of(current.r, swapped.r, data, w), len(others))
+            sv = gain_of(swapped.r, current.r, data, w)
+            ahead = policy.test(sv, len(others))
+            behind = policy.test(sv * np.array([[-1.0], [1.0]]), len(others))
             size = (move.size(anchor), Move("base", change).size(anchor))
             within = not behind[2] and (size[0] < size[1] or (size[0] == size[1] and ahead[0] > 0))
             if not (ahead[2] or within):

@@ -215,11 +215,15 @@ GAP_KEYS = ("rpm_rmse", "current_rmse", "rpm_r2", "current_r2")
 """The keys of report.json's ``gap_before`` / ``gap_after`` (``where.gap``)."""
 
 
-def report_json(result: Result, data: Measured, sims: dict[str, dict]) -> dict:
+def gaps_of(sims: dict[str, dict], data: Measured) -> dict[str, dict[str, float]]:
+    """``where.gap`` of the start's (``before``) and the final model's (``after``) simulations."""
+    return {key: gap(sim, data) for key, sim in sims.items()}
+
+
+def report_json(result: Result, data: Measured, sims: dict[str, dict], gaps: dict) -> dict:
     """The report.json mapping (docs/contracts.md); ``sims``: the start's (``before``) and the
-    final model's (``after``) simulations."""
+    final model's (``after``) simulations; ``gaps``: theirs (``gaps_of``)."""
     final, start = result.final, result.start
-    gaps = {k: gap(sims[k], data) for k in ("before", "after")}
     missing = []
     for name in result.added:
         params = final.config.effect(name).params()
@@ -354,7 +358,7 @@ def markdown(result: Result, report: dict, data: Measured, plots: list[str]) -> 
     return "\n".join(lines)
 
 
-def details(result: Result, data: Measured, sims: dict) -> dict:
+def details(result: Result, data: Measured, sims: dict, gaps: dict) -> dict:
     """details.json: every step with every move judged, signatures and regions."""
     return {
         "warnings": list(result.warnings),
@@ -378,8 +382,8 @@ def details(result: Result, data: Measured, sims: dict) -> dict:
         "signatures_after": signatures(sims["after"], data),
         "regions_before": [r.__dict__ for r in regions(sims["before"], data, data.held)],
         "regions_after": [r.__dict__ for r in regions(sims["after"], data, data.held)],
-        "gap_score_before": gap(sims["before"], data)["score"],
-        "gap_score_after": gap(sims["after"], data)["score"],
+        "gap_score_before": gaps["before"]["score"],
+        "gap_score_after": gaps["after"]["score"],
         "fitted": dict(zip(result.final.names, result.final.values.tolist(), strict=True)),
     }
 
@@ -399,12 +403,13 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict:
         "before": simulate_model(result.start.config, data),
         "after": simulate_model(result.final.config, data),
     }
-    report = report_json(result, data, sims)
+    gaps = gaps_of(sims, data)
+    report = report_json(result, data, sims, gaps)
     with replaced_dir(out) as stage:
         plots = _plots(data, sims, stage)
         write_text(stage / "report.json", json_text(report, nonfinite=lambda _x: None, indent=2))
         dump_config(result.final.config, stage / "model.yaml")
         write_text(stage / "report.md", markdown(result, report, data, plots))
-        detail = json_text(details(result, data, sims), nonfinite=lambda _x: None, indent=2)
+        detail = json_text(details(result, data, sims, gaps), nonfinite=lambda _x: None, indent=2)
         write_text(stage / "details.json", detail)
     return report
