@@ -95,6 +95,9 @@ def rig() -> Iterator[Rig]:
     cmd += ["-p", f"classifier:model_dir={MODELS / 'classifier'}"]
     # Pauses between feeds must not go STALE (which restarts the classifier's window).
     cmd += ["-p", "classifier:stale_after_s=120.0"]
+    # The rig feeds telemetry about 30 times faster than real time: the driver's sensor-data
+    # QoS (depth 5) would drop samples while a node loads a model and open gaps in the stamps.
+    cmd += ["-p", "nominal_model:reliable_telemetry=true"]
     proc = subprocess.Popen(cmd)
     with Probe("reload_probe") as probe:
         reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
