@@ -19,10 +19,11 @@ from hypothesis import strategies as st
 
 from thruster_fdd_shore.cli import main
 from thruster_fdd_shore.core.discrepancy.correction import basis, corrected
-from thruster_fdd_shore.core.discrepancy.engine import run_workflow, structured
+from thruster_fdd_shore.core.discrepancy.engine import judge, run_workflow, structured
 from thruster_fdd_shore.core.discrepancy.measure import FOLDS, prepare_measured, with_held
+from thruster_fdd_shore.core.discrepancy.moves import Move, Spec
 from thruster_fdd_shore.core.discrepancy.report import REPORT_FILES
-from thruster_fdd_shore.core.discrepancy.score import Policy, evidence, gain_of
+from thruster_fdd_shore.core.discrepancy.score import Policy, Scored, evidence, gain_of
 from thruster_fdd_shore.core.sim.cases import PLAUSIBLE, make_case
 from thruster_fdd_shore.core.sim.config import load_config, perturb_unit, set_effect
 from thruster_fdd_shore.core.sim.effects import make_effect
@@ -82,6 +83,26 @@ def test_a_gain_is_evidence_only_above_its_uncertainty_and_the_least_gain() -> N
     assert not evidence(sv, 11.0, 3.0)[2]
     assert not evidence(sv, 2.0, 10.5)[2]
     assert not evidence(-sv * [[1.0], [-1.0]], 2.0, 0.0)[2]
+
+
+@given(seed=st.integers(0, 2**31 - 1), gap=st.floats(0.3, 2.0))
+@settings(max_examples=10, deadline=None)
+def test_a_joint_move_is_taken_only_when_it_beats_each_part_alone(seed: int, gap: float) -> None:
+    """A joint move that gains over the model is still refused when one of its parts made alone
+    does as well: each part must earn its place beside the other."""
+    case = make_case((), 3, duration_s=DURATION_S)
+    data = prepare_measured(case.trace, case.start)
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(size=(3, len(data.t)))
+    n = len(data.t)
+    joint, parent = Scored(Spec(), (), noise, noise), Scored(Spec(), (), noise + gap, noise + gap)
+    move = Move("joint", "coulomb_friction")
+    for part_r, taken in ((noise + gap, True), (noise, False)):
+        part = Scored(Spec(), (), part_r, part_r, np.ones(n, bool))
+        j = judge(move, replace(joint, active=np.ones(n, bool)), parent, data,
+                  np.ones(3), Policy(), 3, [part, part])  # fmt: skip
+        assert j.significant
+        assert j.accepted == taken
 
 
 @given(seed=st.integers(0, 2**31 - 1), delta=st.floats(0.01, 3.0))

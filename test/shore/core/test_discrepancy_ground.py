@@ -21,7 +21,16 @@ from thruster_fdd_shore.core.discrepancy.measure import (
     supply_voltage,
     with_held,
 )
-from thruster_fdd_shore.core.discrepancy.moves import BASE_CHANGES, Move, Spec, made, start_config
+from thruster_fdd_shore.core.discrepancy.moves import (
+    BASE_CHANGES,
+    JOINT,
+    Move,
+    Spec,
+    available,
+    made,
+    start_config,
+    undo,
+)
 from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_SWITCHES,
     PLAUSIBLE,
@@ -178,6 +187,32 @@ def test_undoing_a_base_change_takes_back_what_it_changed(change: str) -> None:
         lag = moved.effect("esc_lag").tau_s + moved.structure.esc_tau2_s
         assert start.effect("esc_lag").tau_s == pytest.approx(lag)
     assert undone.size(anchor) == 0
+
+
+@pytest.mark.parametrize("name", JOINT)
+def test_a_joint_move_makes_its_parts_together(name: str) -> None:
+    """The joint move is its base change and its effect made at once: the spec of both, one
+    start per starting value of the effect with the braking law switched, both taken back by
+    ``undo``, and the parameters of both; offered only while neither part is made."""
+    anchor, _ = start_config(load_config("t100"), [name])
+    case = make_case((), 3, duration_s=DURATION_S)
+    data = prepare_measured(case.trace, case.start)
+    move = Move("joint", name)
+    base, effect = move.parts
+    assert move.label == f"{JOINT[name]} + add {name}"
+    both = effect.spec(base.spec(Spec(), anchor, anchor), anchor, anchor)
+    assert move.spec(Spec(), anchor, anchor) == both
+    starts = move.starts(anchor, data, anchor)
+    assert len(starts) == len(effect.starts(anchor, data, anchor))
+    assert all(s.structure.regen != anchor.structure.regen for s in starts)
+    assert all(s.effect(name) is not None for s in starts)
+    assert undo(move, starts[0], anchor) == anchor
+    assert move.size(anchor) == base.size(anchor) + effect.size(anchor)
+    assert move.label in [m.label for m in available(Spec(), anchor, anchor)]
+    assert move.label not in [m.label for m in available(Spec(), starts[0], anchor)]
+    moved = base.starts(anchor, data, anchor)[0]
+    spec = base.spec(Spec(), anchor, anchor)
+    assert move.label not in [m.label for m in available(spec, moved, anchor)]
 
 
 def _short_trace(duration: float = 60.0):

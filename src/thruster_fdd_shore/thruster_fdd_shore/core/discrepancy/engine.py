@@ -69,7 +69,8 @@ class Judged:
     ``where``: gain where the move acts (``None`` for a removal); ``beyond``: gain over
     the model plus the generic correction, both corrected; ``deficit``: the corrected model's
     lead over the move; ``accepted``: every test passed. ``d``: the per-block gains
-    (plain, where, beyond, deficit), shape (4, 2, N_BLOCKS) (``gain_of``), for the bootstrap.
+    (plain, where, beyond, deficit, then plain, beyond, deficit over each part of a joint
+    move), shape (4 + 3 parts, 2, N_BLOCKS) (``gain_of``), for the bootstrap.
     """
 
     move: str
@@ -83,9 +84,11 @@ class Judged:
     d: np.ndarray = field(repr=False)
 
 
-def judge(move: Move, cand: Scored, parent: Scored, data: Measured, w, policy, moves) -> Judged:
+def judge(
+    move: Move, cand: Scored, parent: Scored, data: Measured, w, policy, moves, parts=()
+) -> Judged:
     """Apply the acceptance rule to ``cand`` (``parent`` with ``move``; ``moves`` share the
-    step's ``alpha``)."""
+    step's ``alpha``; ``parts``: a joint move's parts made alone, each of which it must beat)."""
     plain = gain_of(cand.r, parent.r, data, w)
     acts = cand.active is not None
     stack = np.stack(
@@ -94,6 +97,15 @@ def judge(move: Move, cand: Scored, parent: Scored, data: Measured, w, policy, m
             gain_of(cand.r, parent.r, data, w, cand.active) if acts else plain,
             gain_of(cand.r_g, parent.r_g, data, w),
             gain_of(parent.r_g, cand.r, data, w),
+            *(
+                g
+                for part in parts
+                for g in (
+                    gain_of(cand.r, part.r, data, w),
+                    gain_of(cand.r_g, part.r_g, data, w),
+                    gain_of(part.r_g, cand.r, data, w),
+                )
+            ),
         ]
     )
     gain, se, sig, gain_where, beyond, deficit, accepted = _verdict(stack, policy, moves)
@@ -102,16 +114,39 @@ def judge(move: Move, cand: Scored, parent: Scored, data: Measured, w, policy, m
     )
 
 
+def _with_parts(moves: list[Move]) -> list[Move]:
+    """``moves`` and the parts of its joint moves, each once."""
+    labels = {m.label for m in moves}
+    extra = {p.label: p for m in moves for p in m.parts if p.label not in labels}
+    return [*moves, *extra.values()]
+
+
+def _judge_all(moves: list[Move], outs: list[Scored], parent: Scored, data, policy):
+    """``judge`` each of ``moves`` (its calibration in ``outs``) against ``parent``, a joint
+    move against its parts (``moves`` holds them, ``_with_parts``)."""
+    w = weights(parent.r, data)
+    by_label = {m.label: o for m, o in zip(moves, outs, strict=True)}
+    return tuple(
+        judge(m, o, parent, data, w, policy, len(moves), [by_label[p.label] for p in m.parts])
+        for m, o in zip(moves, outs, strict=True)
+    )
+
+
 def _verdict(d: np.ndarray, policy: Policy, moves: int) -> tuple:
     """(gain, se, significant, where, beyond, deficit, accepted) of the gains ``d`` (``judge``):
     significant, significant where the move acts and mostly there, and either significant
-    beyond the generic correction or not clearly behind it."""
+    beyond the generic correction or not clearly behind it; a joint move also has evidence of
+    a gain over each of its parts made alone, beyond the correction or not clearly behind it
+    there (each part earns its place beside the other, as a move made on it would)."""
     gain, se, sig = policy.test(d[0], moves)
     where, _, sig_where = policy.test(d[1], moves)
     sig_where = sig_where and where >= policy.own_share * gain
     beyond, _, sig_beyond = policy.test(d[2], moves)
     deficit, _, sig_deficit = policy.test(d[3], moves)
     accepted = sig and sig_where and (sig_beyond or not sig_deficit)
+    for k in range(4, len(d), 3):  # each part of a joint move as the parent
+        sig_p, beyond_p, deficit_p = (policy.test(d[k + i], moves)[2] for i in range(3))
+        accepted = accepted and sig_p and (beyond_p or not deficit_p)
     return gain, se, sig, where, beyond, deficit, accepted
 
 
@@ -160,8 +195,10 @@ class Result:
         return float(math.sqrt((k - 1) / k * np.sum((vals - vals.mean()) ** 2)))
 
     def frequency(self, label: str) -> float:
-        """Bootstrap frequency with which the step that took ``label`` took it."""
-        return next((s.frequency for s in self.steps if s.taken == label), 0.0)
+        """Bootstrap frequency with which the step that took ``label`` (alone or in a joint
+        move) took it."""
+        taken = (s for s in self.steps if s.taken and label in s.taken.split(" + "))
+        return next((s.frequency for s in taken), 0.0)
 
 
 def _run(jobs: list[tuple], workers: int, progress: bool, desc: str) -> list[Scored]:
@@ -223,22 +260,29 @@ def search(
         return _run(jobs, workers, progress, desc)
 
     def exchange() -> bool:
-        """Offer each adopted base change's place to another move: the change undone and the
-        accepted move of largest gain made there instead, taken when that model scores higher
-        than the current one, or within the score's uncertainty of it with fewer parameters
-        (as a forward step prefers). A flexible change taken early, while an effect or another
-        change was still missing, may stand in for them. Whether it exchanged."""
+        """Offer each adopted base change's place to the moves it may stand in for, those with
+        evidence of a gain in the step that took it: the change undone and the accepted move of
+        largest gain made there instead, taken when that model scores higher than the current
+        one, or within the score's uncertainty of it with fewer parameters (as a forward step
+        prefers). A flexible change taken early, while an effect or another change was still
+        missing, may stand in for them. Whether it exchanged."""
         nonlocal current
-        for change in current.spec.changes:
-            undone = run([Move("undo", change)], f"undo {change}")[0]
-            others = [m for m in available(undone.spec, undone.folds[0].config, anchor)
-                      if m.label != change]  # fmt: skip
+        rivals = {
+            s.taken: {j.move for j in s.judged if j.significant and j.move != s.taken}
+            for s in steps
+            if s.kind == "forward" and s.taken in current.spec.changes
+        }
+        changes = [c for c in current.spec.changes if rivals.get(c)]
+        undos = run([Move("undo", c) for c in changes], "undo base changes")
+        for change, undone in zip(changes, undos, strict=True):
+            others = _with_parts(
+                [m for m in available(undone.spec, undone.folds[0].config, anchor)
+                 if m.label in rivals[change]]
+            )  # fmt: skip
+            if not others:
+                continue
             outs = run(others, f"in place of {change}", undone)
-            w = weights(undone.r, data)
-            judged = tuple(
-                judge(m, o, undone, data, w, policy, len(others))
-                for m, o in zip(others, outs, strict=True)
-            )
+            judged = _judge_all(others, outs, undone, data, policy)
             ok = [(m, j, o) for m, j, o in zip(others, judged, outs, strict=True) if j.accepted]
             if not ok:
                 continue
@@ -266,7 +310,7 @@ def search(
             current = _refit(current, data, anchor, policy)
             w = weights(current.r, data)
             removals = [Move("remove", e.name) for e in current.folds[0].config.effects]
-            removals = [m for m in removals if f"add {m.name}" != just]
+            removals = [m for m in removals if f"add {m.name}" not in (just or "").split(" + ")]
             if not removals:
                 return removed
             outs = run(removals, "backward step")
@@ -307,10 +351,7 @@ def search(
             break
         outs = run(moves, f"step {len(steps) + 1}: {len(moves)} moves")
         w = weights(current.r, data)
-        judged = tuple(
-            judge(m, o, current, data, w, policy, len(moves))
-            for m, o in zip(moves, outs, strict=True)
-        )
+        judged = _judge_all(moves, outs, current, data, policy)
         for j in sorted(judged, key=lambda j: -j.gain):
             say(
                 f"  {j.move:24s} gain {j.gain:10.1f} +- {j.se:8.1f} beyond {j.beyond:10.1f}"

@@ -109,12 +109,21 @@ back); the start's ESC drive saturation removed; the drive losses the start lack
 saturation, speed-dependent winding loss, idle current growing with speed); the start's
 winding loss fitted within ``WIDE_RANGE``."""
 
+JOINT = {"coulomb_friction": "other braking law", "viscous_friction": "other braking law"}
+"""Effects also offered together with a base change (the ``joint`` move, effect -> change):
+near standstill the propeller's drag vanishes as the square of the speed, so the end of a
+spin-down is its braking law and its friction torques. Neither the braking law nor a friction
+torque fits a spin-down alone where the other is missing (a coasting rotor without the friction
+decelerates too slowly near standstill, and regenerative braking does part of the friction's
+work), so a thruster differing in both would otherwise gain from neither single move."""
+
 
 @dataclass(frozen=True)
 class Move:
     """One change of a model: ``kind`` is ``add`` (an effect of the vocabulary), ``remove``
-    (an effect the model holds), ``base`` (one of ``BASE_CHANGES``) or ``undo`` (a base change
-    the model made); ``name`` says which."""
+    (an effect the model holds), ``base`` (one of ``BASE_CHANGES``), ``joint`` (an effect of
+    ``JOINT`` and its base change together) or ``undo`` (a base change the model made);
+    ``name`` says which (the effect, for a joint move)."""
 
     kind: str
     name: str
@@ -124,6 +133,8 @@ class Move:
         parameter for a widening, one for another base change."""
         if self.kind == "add":
             return len(fields(EFFECTS[self.name]))
+        if self.kind == "joint":
+            return sum(part.size(anchor) for part in self.parts)
         if self.kind in ("remove", "undo"):
             return 0
         if self.name == "drive losses":
@@ -133,12 +144,26 @@ class Move:
         return 1
 
     @property
+    def parts(self) -> tuple[Move, ...]:
+        """The single moves a joint move makes together (none for the others)."""
+        if self.kind != "joint":
+            return ()
+        return (Move("base", JOINT[self.name]), Move("add", self.name))
+
+    @property
     def label(self) -> str:
-        """``add NAME``, ``remove NAME`` or the base change's name."""
+        """``add NAME``, ``remove NAME``, the base change's name, or a joint move's parts'
+        labels joined by `` + ``."""
+        if self.kind == "joint":
+            return " + ".join(part.label for part in self.parts)
         return self.name if self.kind == "base" else f"{self.kind} {self.name}"
 
     def spec(self, spec: Spec, fitted: SimConfig, anchor: SimConfig) -> Spec:
         """``spec`` with this move made (``fitted``: the model's calibrated configuration)."""
+        if self.kind == "joint":
+            for part in self.parts:
+                spec = part.spec(spec, fitted, anchor)
+            return spec
         if self.kind == "add":
             if self.name in spec.removed:  # the start's effect restored
                 return replace(spec, removed=tuple(n for n in spec.removed if n != self.name))
@@ -163,6 +188,11 @@ class Move:
     def starts(self, config: SimConfig, data: Measured, anchor: SimConfig) -> list[SimConfig]:
         """``config`` (a calibrated model) with the move made, once per starting value (an
         undone base change's terms at the ``anchor``'s values)."""
+        if self.kind == "joint":
+            base, effect = self.parts
+            return [
+                c for b in base.starts(config, data, anchor) for c in effect.starts(b, data, anchor)
+            ]
         if self.kind == "add":
             return [
                 set_effect(config, make_effect(self.name, g))
@@ -221,6 +251,9 @@ def undo(
     on): where the two differ is where the move acts."""
     if move.kind == "add":
         return without_effects(config, (move.name,))
+    if move.kind == "joint":
+        base, effect = move.parts
+        return undo(base, undo(effect, config, before), before)
     keys = UNDONE[move.name] if keys is None else keys
     params = {
         k.split(".")[1]: getattr(before.params, k.split(".")[1])
@@ -271,6 +304,11 @@ def available(spec: Spec, fitted: SimConfig, anchor: SimConfig) -> list[Move]:
         "refit winding loss": anchor.params.r_speed_ohm_s > 0.0,
     }
     moves += [Move("base", n) for n in BASE_CHANGES if possible[n] and n not in done]
+    moves += [
+        Move("joint", effect)
+        for effect, change in JOINT.items()
+        if possible[change] and change not in done and fitted.effect(effect) is None
+    ]
     return moves
 
 

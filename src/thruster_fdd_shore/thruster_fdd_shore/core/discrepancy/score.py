@@ -210,7 +210,7 @@ def evaluate(job: tuple) -> Scored:
     n = len(data.t)
     r, r_g = np.zeros((3, n)), np.zeros((3, n))
     seen = _seen(data)
-    acting = fixed is not None or (move is not None and move.kind in ("add", "base"))
+    acting = fixed is not None or (move is not None and move.kind in ("add", "base", "joint"))
     active = np.zeros(n, bool) if acting else None
     folds = []
     spec = Spec() if parent is None else parent.spec
@@ -225,7 +225,7 @@ def evaluate(job: tuple) -> Scored:
             if fixed is not None:
                 origins = [set_effect(base, anchor.effect(fixed))]
             else:
-                add = move is not None and move.kind == "add"
+                add = move is not None and move.kind in ("add", "joint")
                 origins = [base, cold(base, anchor)] if add else [base]
             starts = [
                 min(
