@@ -121,7 +121,9 @@ def _with_parts(moves: list[Move]) -> list[Move]:
     return [*moves, *extra.values()]
 
 
-def _judge_all(moves: list[Move], outs: list[Scored], parent: Scored, data, policy):
+def _judge_all(
+    moves: list[Move], outs: list[Scored], parent: Scored, data: Measured, policy: Policy
+) -> tuple[Judged, ...]:
     """``judge`` each of ``moves`` (its calibration in ``outs``) against ``parent``, a joint
     move against its parts (``moves`` holds them, ``_with_parts``)."""
     w = weights(parent.r, data)
