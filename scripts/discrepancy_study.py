@@ -53,6 +53,7 @@ from thruster_fdd_shore.core.discrepancy.report import (
     friction_currents,
     gaps_of,
     report_json,
+    simulations,
 )
 from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_DURATION_S,
@@ -161,10 +162,7 @@ def one(job: tuple[str, tuple[str, ...], tuple[str, ...], int, float]) -> dict:
     case = make_job_case(family, hidden, superfluous, seed, duration)
     t0 = time.perf_counter()
     result, data = run_workflow(case.trace, case.start, workers=1, progress=False)
-    sims = {
-        "before": simulate_model(result.start.config, data),
-        "after": simulate_model(result.final.config, data),
-    }
+    sims = simulations(result, data)
     gaps = gaps_of(sims, data)
     rep = report_json(result, data, sims, gaps)
     model_error = [_model_error(f.config, case.clean, data) for f in (result.start, result.final)]

@@ -303,16 +303,18 @@ def search(
             return True
         return False
 
-    def backward(just: str | None) -> bool:
-        """Remove, one at a time, what no longer earns its place; an effect of the start only
-        where the data also contradict its claim. Whether anything was removed."""
+    def backward(just: Move | None) -> bool:
+        """Remove, one at a time, what no longer earns its place (not the effect ``just``
+        added); an effect of the start only where the data also contradict its claim. Whether
+        anything was removed."""
         nonlocal current
         removed = False
         for _ in range(len(anchor.effects) + policy.max_steps):
             current = _refit(current, data, anchor, policy)
             w = weights(current.r, data)
             removals = [Move("remove", e.name) for e in current.folds[0].config.effects]
-            removals = [m for m in removals if f"add {m.name}" not in (just or "").split(" + ")]
+            added = {p.label for p in (just.parts or (just,))} if just else set()
+            removals = [m for m in removals if f"add {m.name}" not in added]
             if not removals:
                 return removed
             outs = run(removals, "backward step")
@@ -380,7 +382,7 @@ def search(
         steps.append(Step("forward", judged, best.move, freq[best.move], tied))
         say(f"took {best.move}")
         current = scored
-        backward(best.move)
+        backward(by_label[best.move])
     else:
         backward(None)
     current = _confirm_removals(current, data, anchor, policy, say)

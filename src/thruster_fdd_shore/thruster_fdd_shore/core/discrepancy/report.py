@@ -215,6 +215,14 @@ GAP_KEYS = ("rpm_rmse", "current_rmse", "rpm_r2", "current_r2")
 """The keys of report.json's ``gap_before`` / ``gap_after`` (``where.gap``)."""
 
 
+def simulations(result: Result, data: Measured) -> dict[str, dict]:
+    """The start's (``before``) and the final model's (``after``) simulations of ``data``."""
+    return {
+        "before": simulate_model(result.start.config, data),
+        "after": simulate_model(result.final.config, data),
+    }
+
+
 def gaps_of(sims: dict[str, dict], data: Measured) -> dict[str, dict[str, float]]:
     """``where.gap`` of the start's (``before``) and the final model's (``after``) simulations."""
     return {key: gap(sim, data) for key, sim in sims.items()}
@@ -399,10 +407,7 @@ def write_report(result: Result, data: Measured, out: str | Path) -> dict:
     """
     out = Path(out)
     check_out_dir(out)
-    sims = {
-        "before": simulate_model(result.start.config, data),
-        "after": simulate_model(result.final.config, data),
-    }
+    sims = simulations(result, data)
     gaps = gaps_of(sims, data)
     report = report_json(result, data, sims, gaps)
     with replaced_dir(out) as stage:
