@@ -105,6 +105,27 @@ def test_a_joint_move_is_taken_only_when_it_beats_each_part_alone(seed: int, gap
         assert j.accepted == taken
 
 
+@given(seed=st.integers(0, 2**31 - 1), share=st.floats(0.02, 0.15))
+@settings(max_examples=10, deadline=None)
+def test_a_move_is_credited_with_the_re_fit_it_allows(seed: int, share: float) -> None:
+    """A move that acts on a few samples (a current limit at the top of the reversals) and,
+    made, lets the base fit everywhere else: most of its gain lies where it does not act, and
+    it is taken once its gain where it acts is evidence. Without that, it is refused."""
+    case = make_case((), 3, duration_s=DURATION_S)
+    data = prepare_measured(case.trace, case.start)
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(size=(3, len(data.t)))
+    active = rng.random(len(data.t)) < share
+    move = Move("add", "current_limit")
+    cand = Scored(Spec(), (), noise, noise, active)
+    for where, taken in ((2.0, True), (0.0, False)):
+        off = noise + np.where(active, where, 1.0)
+        j = judge(move, cand, Scored(Spec(), (), off, off), data, np.ones(3), Policy(), 3)
+        assert j.significant
+        assert j.gain > 2.0 * j.where
+        assert j.accepted == taken
+
+
 @given(seed=st.integers(0, 2**31 - 1), delta=st.floats(0.01, 3.0))
 @settings(max_examples=20, deadline=None)
 def test_the_gain_of_two_models_and_its_variance_follow_the_noise(seed: int, delta: float) -> None:

@@ -136,13 +136,13 @@ def _judge_all(
 
 def _verdict(d: np.ndarray, policy: Policy, moves: int) -> tuple:
     """(gain, se, significant, where, beyond, deficit, accepted) of the gains ``d`` (``judge``):
-    significant, significant where the move acts and mostly there, and either significant
+    significant, significant where the move acts (the rest of its gain is the re-fit of the
+    base it allows: a missing effect distorts the fit of the others), and either significant
     beyond the generic correction or not clearly behind it; a joint move also has evidence of
     a gain over each of its parts made alone, beyond the correction or not clearly behind it
     there (each part earns its place beside the other, as a move made on it would)."""
     gain, se, sig = policy.test(d[0], moves)
     where, _, sig_where = policy.test(d[1], moves)
-    sig_where = sig_where and where >= policy.own_share * gain
     beyond, _, sig_beyond = policy.test(d[2], moves)
     deficit, _, sig_deficit = policy.test(d[3], moves)
     accepted = sig and sig_where and (sig_beyond or not sig_deficit)

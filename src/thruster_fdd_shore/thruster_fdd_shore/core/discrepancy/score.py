@@ -60,9 +60,6 @@ class Policy:
         group of the generic correction with evidence marks a structured rest: a systematic
         error below 0.22 noise std RMS is evidence on a long trace but invisible in a plot of
         the residual (the simulator's own model, replayed on its trace, leaves about 0.02).
-    own_share : float
-        Least share of a move's gain that must lie where it acts: the rest is the re-fit of
-        the other parameters, which a move may enable but not consist of.
     bootstrap : int
         Block-bootstrap replicates of the recorded gains.
     seed : int
@@ -76,7 +73,6 @@ class Policy:
     min_gain: float = 3.0
     max_steps: int = 4
     active_sigma: float = 1.0
-    own_share: float = 0.5
     structured: float = 2.0
     rest_least: float = 0.05
     bootstrap: int = 400
