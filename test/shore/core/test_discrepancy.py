@@ -105,7 +105,7 @@ def test_a_joint_move_is_taken_only_when_it_beats_each_part_alone(seed: int, gap
         assert j.accepted == taken
 
 
-@given(seed=st.integers(0, 2**31 - 1), share=st.floats(0.02, 0.15))
+@given(seed=st.integers(0, 2**31 - 1), share=st.floats(0.05, 0.12))
 @settings(max_examples=10, deadline=None)
 def test_a_move_is_credited_with_the_re_fit_it_allows(seed: int, share: float) -> None:
     """A move that acts on a few samples (a current limit at the top of the reversals) and,
