@@ -5,6 +5,7 @@ structure never named as an effect, answers independent of the fold assignment).
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import json
 from concurrent.futures import ProcessPoolExecutor
@@ -20,7 +21,12 @@ from hypothesis import strategies as st
 from thruster_fdd_shore.cli import main
 from thruster_fdd_shore.core.discrepancy.correction import basis, corrected
 from thruster_fdd_shore.core.discrepancy.engine import judge, run_workflow, structured
-from thruster_fdd_shore.core.discrepancy.measure import FOLDS, prepare_measured, with_held
+from thruster_fdd_shore.core.discrepancy.measure import (
+    FOLDS,
+    Measured,
+    prepare_measured,
+    with_held,
+)
 from thruster_fdd_shore.core.discrepancy.moves import Move, Spec
 from thruster_fdd_shore.core.discrepancy.report import REPORT_FILES
 from thruster_fdd_shore.core.discrepancy.score import Policy, Scored, evidence, gain_of
@@ -49,6 +55,14 @@ EXAMPLES = settings(
     suppress_health_check=[HealthCheck.too_slow],
 )
 """Each example is a whole workflow run (5-20 s): no shrinking, the failing example is shown."""
+
+
+@functools.cache
+def _null_data() -> Measured:
+    """A prepared null trace (seed 3), the samples under the acceptance rule's synthetic
+    residuals; prepared once, as every hypothesis example reads the same."""
+    case = make_case((), 3, duration_s=DURATION_S)
+    return prepare_measured(case.trace, case.start)
 
 
 def _run(trace, start, **kw):
@@ -90,8 +104,7 @@ def test_a_gain_is_evidence_only_above_its_uncertainty_and_the_least_gain() -> N
 def test_a_joint_move_is_taken_only_when_it_beats_each_part_alone(seed: int, gap: float) -> None:
     """A joint move that gains over the model is still refused when one of its parts made alone
     does as well: each part must earn its place beside the other."""
-    case = make_case((), 3, duration_s=DURATION_S)
-    data = prepare_measured(case.trace, case.start)
+    data = _null_data()
     rng = np.random.default_rng(seed)
     noise = rng.normal(size=(3, len(data.t)))
     n = len(data.t)
@@ -111,8 +124,7 @@ def test_a_move_is_credited_with_the_re_fit_it_allows(seed: int, share: float) -
     """A move that acts on a few samples (a current limit at the top of the reversals) and,
     made, lets the base fit everywhere else: most of its gain lies where it does not act, and
     it is taken once its gain where it acts is evidence. Without that, it is refused."""
-    case = make_case((), 3, duration_s=DURATION_S)
-    data = prepare_measured(case.trace, case.start)
+    data = _null_data()
     rng = np.random.default_rng(seed)
     noise = rng.normal(size=(3, len(data.t)))
     active = rng.random(len(data.t)) < share
@@ -131,8 +143,7 @@ def test_a_move_is_credited_with_the_re_fit_it_allows(seed: int, share: float) -
 def test_the_gain_of_two_models_and_its_variance_follow_the_noise(seed: int, delta: float) -> None:
     """Identical residuals gain nothing with no uncertainty; residuals ``delta`` apart have
     the variance ``w * delta**2`` per sample, whatever the noise."""
-    case = make_case((), 3, duration_s=DURATION_S)
-    data = prepare_measured(case.trace, case.start)
+    data = _null_data()
     rng = np.random.default_rng(seed)
     r = rng.normal(size=(3, len(data.t)))
     w = np.array([1.0, 0.5, 0.25])
@@ -148,8 +159,7 @@ def test_the_generic_correction_takes_a_smooth_curve_but_not_a_deadband() -> Non
     """Fitted on the training blocks of a fold, the static correction removes a residual that
     is a smooth function of the command from the held-out blocks, and leaves much of a
     deadband's sharp notch: the premise of the stand-in guard."""
-    case = make_case((), 3, duration_s=DURATION_S)
-    data = prepare_measured(case.trace, case.start)
+    data = _null_data()
     ramp = np.resize(np.linspace(-1.0, 1.0, 41), len(data.t))  # every command in each block
     data = replace(data, command=ramp, rpm=4000.0 * ramp)
     rng = np.random.default_rng(0)
