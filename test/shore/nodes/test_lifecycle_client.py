@@ -102,6 +102,26 @@ def test_get_state_asks_again_when_an_answer_is_lost(server: Server) -> None:
     assert server.get_calls >= 2
 
 
+def test_the_probe_asks_again_when_an_answer_is_lost(server: Server) -> None:
+    """``Probe.ask`` (what ``thruster-fdd reload`` asks the nodes' parameter services with) takes
+    the answer to a repeated request when the first one's never comes, and gives None when no
+    answer comes in time."""
+    from lifecycle_msgs.srv import GetState
+
+    server.state = "active"
+    with Probe("asker") as probe:
+        client = probe.node.create_client(GetState, "/silent_once/get_state")
+        assert client.wait_for_service(timeout_sec=15.0)
+        answer = probe.ask(lambda: client.call_async(GetState.Request()), 15.0)
+        assert answer is not None
+        assert answer.current_state.label == "active"
+        assert server.get_calls >= 2
+        server.get_calls = 0  # the next call is held again
+        assert probe.ask(lambda: client.call_async(GetState.Request()), 1.0) is None
+        server.release.set()
+        probe.spin(0.5)
+
+
 def test_a_transition_whose_answer_is_lost_is_read_from_the_state(server: Server) -> None:
     """The node made the transition but its answer does not come: the state tells, and the
     transition is not asked twice."""

@@ -135,10 +135,12 @@ def _set_model_dir(rig: Rig, node: str, folder: Path) -> tuple[bool, str]:
 
     client = AsyncParameterClient(rig.probe.node, f"{NS}/{node}")
     assert client.wait_for_services(timeout_sec=20.0)
-    future = client.set_parameters([Parameter("model_dir", Parameter.Type.STRING, str(folder))])
-    assert rig.probe.spin_until(future.done, 20.0)
-    result = future.result().results[0]
-    return result.successful, result.reason
+    answer = rig.probe.ask(
+        lambda: client.set_parameters([Parameter("model_dir", Parameter.Type.STRING, str(folder))]),
+        20.0,
+    )
+    assert answer is not None, f"{node} did not answer"
+    return answer.results[0].successful, answer.results[0].reason
 
 
 @pytest.mark.parametrize(
@@ -279,9 +281,9 @@ def _get_model_dir(rig: Rig, node: str) -> str:
 
     client = AsyncParameterClient(rig.probe.node, f"{NS}/{node}")
     assert client.wait_for_services(timeout_sec=20.0)
-    future = client.get_parameters(["model_dir"])
-    assert rig.probe.spin_until(future.done, 20.0)
-    return future.result().values[0].string_value
+    answer = rig.probe.ask(lambda: client.get_parameters(["model_dir"]), 20.0)
+    assert answer is not None, f"{node} did not answer"
+    return answer.values[0].string_value
 
 
 @pytest.mark.parametrize("meanwhile", ["another reload", "set back"])
@@ -308,7 +310,9 @@ def test_a_reload_waiting_for_its_staged_classifier_answers_true(
         loaded = str((tmp_path / "a" / "nominal").resolve())
         while _get_model_dir(rig, "nominal_model") != loaded and time.monotonic() < deadline:
             rig.probe.spin(0.1)
-        assert _get_model_dir(rig, "nominal_model") == loaded, "the first reload never got there"
+        if _get_model_dir(rig, "nominal_model") != loaded:
+            first.kill()
+            pytest.fail(f"the first reload never got there: {first.communicate()}")
         if meanwhile == "another reload":
             second = subprocess.run(
                 [*RELOAD[:-1], "5", "--models", str(tmp_path / "b")],

@@ -404,8 +404,8 @@ def test_lifecycle_transitions_walked_on_a_pty(tmp_path: Path, quiet_t100: objec
             parameters = AsyncParameterClient(probe.node, node_name)
             assert parameters.wait_for_services(timeout_sec=30.0)
             for protocol, expected in (("bogus", False), ("tfdd", True)):
-                future = parameters.set_parameters([Parameter("protocol", value=protocol)])
-                assert probe.spin_until(future.done, 10.0)
+                request = [Parameter("protocol", value=protocol)]
+                assert probe.ask(lambda r=request: parameters.set_parameters(r), 10.0) is not None
                 assert (change("configure") == {}) is expected
             assert state() == "inactive"
             assert probe.spin_until(port_open, 2.0), "configure did not open the port"

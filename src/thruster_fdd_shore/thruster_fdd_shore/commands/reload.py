@@ -135,21 +135,22 @@ class _Session:
 
         return AsyncParameterClient(self._probe.node, remote).wait_for_services(timeout_sec=wait_s)
 
-    def _wait(self, future: Any) -> Any | None:
-        self._probe.spin_until(future.done, self.timeout_s, 0.02)
-        return future.result() if future.done() else None
-
     def get_model_dir(self, client: Any) -> str | None:
         """The node's ``model_dir`` now, or None without an answer."""
-        result = self._wait(client.get_parameters(["model_dir"]))
+        result = self._probe.ask(lambda: client.get_parameters(["model_dir"]), self.timeout_s)
         return None if result is None else result.values[0].string_value
 
     def set_model_dir(self, client: Any, folder: str) -> tuple[bool, str]:
-        """Set ``model_dir``: (accepted, the node's reason or why there is none)."""
+        """Set ``model_dir``: (accepted, the node's reason or why there is none).
+
+        Asked again when no answer comes: setting the same folder twice loads the same model
+        (or stages it again), so the node ends in the same state.
+        """
         from rclpy.parameter import Parameter
 
-        result = self._wait(
-            client.set_parameters([Parameter("model_dir", Parameter.Type.STRING, folder)])
+        result = self._probe.ask(
+            lambda: client.set_parameters([Parameter("model_dir", Parameter.Type.STRING, folder)]),
+            self.timeout_s,
         )
         if result is None:
             return False, f"no answer within {self.timeout_s:g} s"
