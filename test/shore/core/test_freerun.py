@@ -20,7 +20,7 @@ from thruster_fdd_shore.core.sim.freerun import free_run
 from thruster_fdd_shore.core.sim.physics import ThrusterSimulator
 
 RTOL = 1e-9
-"""Relative tolerance of the comparison (the kernel keeps the reference's operation order)."""
+"""Relative tolerance of the comparison (the kernel differs from the reference by rounding)."""
 
 RANGES: dict[str, tuple[str, float, float]] = {
     "dead_time": ("delay_s", 0.05, 1.2),

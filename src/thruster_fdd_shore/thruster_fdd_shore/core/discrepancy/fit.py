@@ -22,7 +22,7 @@ from thruster_fdd_shore.core.discrepancy.measure import (
     simulate_model,
     weighted_residuals,
 )
-from thruster_fdd_shore.core.sim.config import SimConfig, set_effect
+from thruster_fdd_shore.core.sim.config import SimConfig
 from thruster_fdd_shore.core.sim.effects import make_effect
 
 BASE_FIT = ("k_e", "r_ohm", "k_q", "k_q_reverse_ratio", "inertia", "i_idle_a")
@@ -132,17 +132,23 @@ def _get(config: SimConfig, key: str) -> float:
 
 
 def _set(config: SimConfig, values: dict[str, float]) -> SimConfig:
-    base = {k.split(".")[1]: v for k, v in values.items() if k.startswith("params.")}
-    if base:
-        config = replace(config, params=replace(config.params, **base))
-    structure = {k.split(".")[1]: v for k, v in values.items() if k.startswith("structure.")}
-    if structure:
-        config = replace(config, structure=replace(config.structure, **structure))
-    for effect in config.effects:
-        mine = {k.split(".")[1]: v for k, v in values.items() if k.startswith(f"{effect.name}.")}
-        if mine:
-            config = set_effect(config, make_effect(effect.name, {**effect.params(), **mine}))
-    return config
+    """``config`` with ``values`` (by ``owner.name``; keys of absent effects are ignored), made
+    in one step: a fit builds a configuration per simulation."""
+    groups: dict[str, dict[str, float]] = {}
+    for key, value in values.items():
+        owner, name = key.split(".")
+        groups.setdefault(owner, {})[name] = value
+    changes: dict[str, object] = {}
+    if "params" in groups:
+        changes["params"] = replace(config.params, **groups.pop("params"))
+    if "structure" in groups:
+        changes["structure"] = replace(config.structure, **groups.pop("structure"))
+    if groups:
+        changes["effects"] = tuple(
+            make_effect(e.name, {**e.params(), **groups[e.name]}) if e.name in groups else e
+            for e in config.effects
+        )
+    return replace(config, **changes) if changes else config
 
 
 _TAU2 = "structure.esc_tau2_s"
@@ -341,7 +347,8 @@ def calibrate(
         # A simulation that blows up (a trial step far out: a supply resistance much larger
         # than the motor's makes the bus voltage oscillate) is a very bad, finite fit; clipped
         # everywhere, as huge finite residuals overflow the finite-difference Jacobian.
-        return np.clip(np.nan_to_num(out, nan=BLOWN_UP), -BLOWN_UP, BLOWN_UP)
+        out[np.isnan(out)] = BLOWN_UP
+        return np.clip(out, -BLOWN_UP, BLOWN_UP, out=out)
 
     # z = 0 (the start) strictly inside the bounds, so the first trust region is sized 1: a
     # start nudged off a bound (z = 1e-9) makes it vanish, the fit then stops at once.

@@ -353,7 +353,7 @@ def simulate_model(config: SimConfig, data: Measured) -> dict[str, np.ndarray]:
     """
     sag = config.effect("voltage_sag")
     supply = supply_voltage(data, sag.params()["r_internal_ohm"] if sag else 0.0)
-    return free_run(noise_free(config), data.t, data.command, supply)
+    return free_run(config, data.t, data.command, supply)  # noise-free: it ignores the noise
 
 
 def reported(sim: dict[str, np.ndarray], data: Measured) -> dict[str, np.ndarray]:

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import norm
+from scipy.special import ndtri
 
 from thruster_fdd_shore.core.discrepancy.correction import GROUPS, basis, corrected
 from thruster_fdd_shore.core.discrepancy.fit import (
@@ -81,7 +81,7 @@ class Policy:
 
     def critical(self, moves: int) -> float:
         """Normal quantile a gain must exceed, in its own standard errors."""
-        return float(norm.ppf(1.0 - self.alpha / max(moves, 1)))
+        return float(ndtri(1.0 - self.alpha / max(moves, 1)))
 
     def test(self, sv: np.ndarray, moves: int = 1) -> tuple[float, float, bool]:
         """``evidence`` with this policy, ``moves`` sharing ``alpha``."""

@@ -3,12 +3,12 @@
 ``free_run`` computes what ``ThrusterSimulator`` (the reference, ``sim.physics``) reports when
 it is stepped through a command history without measurement noise: the same dead-time segments,
 deadband, ESC lag and slew limit, current limit (``plant.limited_duty``), voltage sag,
-Coulomb and viscous friction, reverse ``k_q``, speed-dependent resistance and ESC drive loss, the
-same 10 ms substeps and the same order of floating-point operations, so the two agree to
-rounding; also every switch of ``SimConfig.structure`` (second ESC stage, speed-dependent idle
-current, coasting instead of regeneration). The discrepancy workflow calls it thousands of
-times per run (least-squares Jacobians by finite differences), where the reference's Python
-loop costs about 0.2 s per 6000 samples.
+Coulomb and viscous friction, reverse ``k_q``, speed-dependent resistance and ESC drive loss,
+and every switch of ``SimConfig.structure`` (second ESC stage, speed-dependent idle current,
+coasting instead of regeneration), with the same 10 ms substeps and the same arithmetic up to
+divisions taken as products with reciprocals, so the two agree to about 1e-13 relative. The
+discrepancy workflow calls it thousands of times per run (least-squares Jacobians by finite
+differences), where the reference's Python loop costs about 0.2 s per 6000 samples.
 
 Not covered (the workflow does not need them): conditions other than a healthy unit (the
 once-per-revolution ripple of a broken blade), unit spread, the winding temperature, thrust and
@@ -67,6 +67,10 @@ def _integrate(
     alpha2 = 1.0 - math.exp(-h / tau2) if tau2 > 0.0 else 1.0
     max_dd = slew * h
     j_h = inertia / h
+    # Fewer divisions than the reference (1 / v_sat as a factor, the speed update multiplied
+    # through by R): about 25 % faster, equal to about 1e-13 relative.
+    inv_vsat = 1.0 / vsat
+    k_e2 = k_e * k_e
     for _ in range(n):
         if tau2 > 0.0:
             d1 += (target - d1) * alpha
@@ -76,24 +80,26 @@ def _integrate(
         # Python's max(-max_dd, min(max_dd, dd)), argument order kept
         step = dd if dd < max_dd else max_dd
         d += step if step > -max_dd else -max_dd
-        ve = vb / (1.0 + vb / vsat)
-        reff = r0 + rs * abs(w)
+        ve = vb / (1.0 + vb * inv_vsat)
+        aw = abs(w)
+        r = r0 + rs * aw
         de = d
         motor = 1.0
-        drawn = d * (d * ve - k_e * w) / reff
+        drawn = d * (d * ve - k_e * w) / r
         if regen == 0.0 and drawn < 0.0:
             motor = 0.0
             drawn = 0.0
-        ibus = drawn + i_idle + i_idle_speed * abs(w)
+        ibus = drawn + i_idle + i_idle_speed * aw
         if ibus > i_max:
-            de = _limited_duty(pl, d, ve, w, reff)
+            de = _limited_duty(pl, d, ve, w, r)
             ibus = i_max
         vb = v_supply - r_int * ibus
-        aw = abs(w)
         kq = k_q if w >= 0.0 else k_q_rev
-        a = j_h + motor * k_e * k_e / reff + 2.0 * kq * aw + b
-        rhs = j_h * w + motor * k_e * de * ve / reff + kq * w * aw
-        w = 0.0 if abs(rhs) <= tc else (rhs - math.copysign(tc, rhs)) / a
+        # The reference's a and rhs times R: one division on the speed's chain.
+        a_r = (j_h + 2.0 * kq * aw + b) * r + motor * k_e2
+        rhs_r = (j_h * w + kq * w * aw) * r + motor * k_e * de * ve
+        tc_r = tc * r
+        w = 0.0 if abs(rhs_r) <= tc_r else (rhs_r - math.copysign(tc_r, rhs_r)) / a_r
     return w, d, d1, vb
 
 
