@@ -68,7 +68,7 @@ def _integrate(
     max_dd = slew * h
     j_h = inertia / h
     # Fewer divisions than the reference (1 / v_sat as a factor, the speed update multiplied
-    # through by R): about 25 % faster, equal to about 1e-13 relative.
+    # through by R): about 20 % faster, equal to about 1e-13 relative.
     inv_vsat = 1.0 / vsat
     k_e2 = k_e * k_e
     for _ in range(n):
