@@ -14,7 +14,6 @@ from thruster_fdd_shore.core.discrepancy.measure import (
     FOLDS,
     N_BLOCKS,
     Measured,
-    noise_free,
     prepare_measured,
     reporting_floor,
     simulate_model,
@@ -378,7 +377,7 @@ def test_base_parameters_stay_near_the_anchor() -> None:
 
 def test_model_simulation_equals_simulator() -> None:
     """Driven by a constant supply, the model run equals the simulator's noise-free run."""
-    config = noise_free(load_config("t100"))
+    config = replace(load_config("t100"), spread=0.0, measurement=Measurement())
     t, u = make_signal("multilevel", 60.0, 10.0, seed=1)
     truth = simulate(config, t, u, voltage=15.0)
     flat = replace(truth, voltage=np.full_like(truth.voltage, 15.0) - 0.03 * truth.current)

@@ -19,8 +19,8 @@ from rclpy.task import Future
 from thruster_fdd.nodes.common import spin_until
 
 ASK_AGAIN_S = 2.0
-"""Wait for an answer before a question is asked again (``get_state``) or the state is asked
-(``change_states``), s."""
+"""Wait for an answer before a question is asked again (``ask``, ``get_state``) or the state is
+asked (``change_states``), s."""
 
 
 GOAL_STATE = {
@@ -170,21 +170,35 @@ def get_state(
         )
         if not ready or abort() is not None:
             return None
-        # Asked again every ASK_AGAIN_S: the service may be ready to the client before the
-        # server's answer can reach it, and Fast DDS then drops the answer ("failed to send
-        # response (timeout)", ros2/rmw_fastrtps#706); the question changes nothing.
-        futures: list[Future] = []
-        while time.monotonic() < deadline:
-            futures.append(client.call_async(GetState.Request()))
-            wait = min(deadline, time.monotonic() + ASK_AGAIN_S)
-            spin_until(
-                executor, lambda: abort() is not None or any(f.done() for f in futures), wait
-            )
-            if abort() is not None:
-                return None
-            done = next((f for f in futures if f.done()), None)
-            if done is not None:
-                return str(done.result().current_state.label)
-        return None
+        answer = ask(executor, lambda: client.call_async(GetState.Request()), deadline, abort)
+        return None if answer is None else str(answer.current_state.label)
     finally:
         node.destroy_client(client)
+
+
+def ask(
+    executor: Any,
+    request: Callable[[], Future],
+    deadline: float,
+    abort: Callable[[], str | None] = lambda: None,
+) -> Any | None:
+    """The result of the first answered call of ``request()`` (which sends a service request
+    and returns its future), or None when none is answered before ``deadline``
+    (``time.monotonic()``) or ``abort`` gives a reason first.
+
+    The request is sent again every ``ASK_AGAIN_S``: a service may be ready to its client
+    before the server's answer can reach it, and Fast DDS then drops the answer ("failed to
+    send response (timeout)", ros2/rmw_fastrtps#706). ``request`` must leave the same state
+    when it is served twice (a get, or a set to the same value).
+    """
+    futures: list[Future] = []
+    while time.monotonic() < deadline:
+        futures.append(request())
+        wait = min(deadline, time.monotonic() + ASK_AGAIN_S)
+        spin_until(executor, lambda: abort() is not None or any(f.done() for f in futures), wait)
+        if abort() is not None:
+            return None
+        done = next((f for f in futures if f.done()), None)
+        if done is not None:
+            return done.result()
+    return None

@@ -46,26 +46,11 @@ class Probe:
         self.spin_until(lambda: False, seconds)
 
     def ask(self, request: Callable[[], Any], timeout_s: float) -> Any | None:
-        """The result of the first answered call of ``request()`` (which sends a service
-        request and returns its future), or None when none is answered within ``timeout_s``.
+        """``lifecycle_client.ask`` on this probe's executor: the result of the first answered
+        call of ``request()``, sent again while no answer comes, or None after ``timeout_s``."""
+        from thruster_fdd_shore.nodes.lifecycle_client import ask
 
-        The request is sent again every ``lifecycle_client.ASK_AGAIN_S``: a service may be ready
-        to its client before the server's answer can reach it, and Fast DDS then drops the
-        answer ("failed to send response (timeout)", ros2/rmw_fastrtps#706). ``request`` must
-        leave the same state when it is served twice (a get, or a set to the same value).
-        """
-        from thruster_fdd_shore.nodes.lifecycle_client import ASK_AGAIN_S
-
-        deadline = time.monotonic() + timeout_s
-        futures: list[Any] = []
-        while time.monotonic() < deadline:
-            futures.append(request())
-            wait_s = min(ASK_AGAIN_S, deadline - time.monotonic())
-            self.spin_until(lambda: any(f.done() for f in futures), wait_s, 0.02)
-            done = next((f for f in futures if f.done()), None)
-            if done is not None:
-                return done.result()
-        return None
+        return ask(self.executor, request, time.monotonic() + timeout_s)
 
     def close(self) -> None:
         import rclpy

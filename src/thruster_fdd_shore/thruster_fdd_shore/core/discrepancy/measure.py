@@ -15,7 +15,7 @@ from scipy.ndimage import binary_dilation, median_filter
 
 from thruster_fdd.core.errors import BadInputError
 from thruster_fdd.core.traces.data import Trace
-from thruster_fdd_shore.core.sim.config import Measurement, SimConfig
+from thruster_fdd_shore.core.sim.config import SimConfig
 from thruster_fdd_shore.core.sim.freerun import free_run
 
 CHANNELS = ("rpm", "current", "voltage")
@@ -334,17 +334,12 @@ _SUPPLY: dict[tuple, np.ndarray] = {}
 models that share one sag resistance."""
 
 
-def noise_free(config: SimConfig) -> SimConfig:
-    """The nominal unit without measurement noise, outliers, quantisation or reporting floor."""
-    return replace(config, spread=0.0, measurement=Measurement())
-
-
 def simulate_model(config: SimConfig, data: Measured) -> dict[str, np.ndarray]:
     """Free-run, noise-free simulation driven by the measured command and supply voltage.
 
     The compiled ``core.sim.freerun.free_run``: equal (to rounding, tested) to the reference
-    ``ThrusterSimulator`` of ``noise_free(config)`` stepped through the measured command, with
-    the supply of ``supply_voltage`` set before each step.
+    ``ThrusterSimulator`` of ``config`` without noise or spread, stepped through the measured
+    command with the supply of ``supply_voltage`` set before each step.
 
     Returns
     -------

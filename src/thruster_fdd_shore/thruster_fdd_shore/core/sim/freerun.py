@@ -166,9 +166,9 @@ def free_run(
 ) -> dict[str, np.ndarray]:
     """Noise-free free run of the nominal unit of ``config`` (healthy, spread not applied).
 
-    Equals ``ThrusterSimulator(noise_free(config), voltage=supply[0])`` stepped with
-    ``step(command[i], t[i] - t[i-1])`` (``dt = 0`` for row 0), with ``set_voltage(supply[i])``
-    before step ``i`` whenever the supply changes, to rounding.
+    Equals ``ThrusterSimulator(config, voltage=supply[0])`` with measurement noise and spread
+    off, stepped with ``step(command[i], t[i] - t[i-1])`` (``dt = 0`` for row 0), with
+    ``set_voltage(supply[i])`` before step ``i`` whenever the supply changes, to rounding.
 
     Parameters
     ----------
