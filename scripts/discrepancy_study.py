@@ -1,4 +1,5 @@
-"""Many-seeds study of the discrepancy workflow on traces with hidden effects, in two families.
+"""Many-seeds study of the discrepancy workflow on traces with hidden effects, in three kinds of
+family.
 
 - ``exact``: t100 traces whose base physics are the start preset's exactly (plus unit spread);
   every effect of the vocabulary hidden in turn, three pairs, null traces with nothing hidden
@@ -9,6 +10,9 @@
   effect vocabulary (``cases.MISMATCH_SWITCHES``), the start keeps only ``esc_lag``; single
   and paired hidden effects, null traces, and starts holding an effect the thruster lacks
   (``superfluous: NAME``). The ``mixed`` signal; default 600 s traces.
+- ``throttle_curve`` / ``rpm_filter`` / ``command_hysteresis``: t100 thrusters with a structure
+  neither the simulator nor the vocabulary has (``cases.make_outside_case``), null traces and a
+  hidden deadband, dead time or sag. ``multilevel`` commands; default 240 s traces.
 
 Per case and seed it runs the workflow and records what was hidden, named (missing and
 superfluous), the parameter errors and the gap before and after; it prints one Markdown table
@@ -22,7 +26,7 @@ the table of that file only).
 
 Usage::
 
-    python scripts/discrepancy_study.py [--family exact t100 t200] [--seeds 5] \
+    python scripts/discrepancy_study.py [--family exact t100 t200 ...] [--seeds 5] \
         [--first-seed 100] [--duration S] [--workers 2] [--cases null deadband ...] \
         [--json runs.jsonl] [--out DIR]
     python scripts/discrepancy_study.py --table runs.jsonl [--out DIR]
@@ -81,8 +85,8 @@ PAIRS = (
 
 FAMILIES = ("exact", "t100", "t200", *OUTSIDE)
 """``exact``: base physics of the start preset (t100); ``t100`` / ``t200``: mismatch cases
-starting from that preset; ``throttle_curve`` / ``rpm_filter``: a structure neither the
-simulator nor the vocabulary has (``cases.make_outside_case``)."""
+starting from that preset; ``throttle_curve`` / ``rpm_filter`` / ``command_hysteresis``: a
+structure neither the simulator nor the vocabulary has (``cases.make_outside_case``)."""
 
 OUTSIDE_HIDDEN = ("deadband", "dead_time", "voltage_sag")
 """Effects hidden beside a structure outside the vocabulary."""

@@ -7,6 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from thruster_fdd_shore.cli import main
 from thruster_fdd_shore.core.discrepancy.fit import BASE_RANGE, calibrate
@@ -32,11 +34,14 @@ from thruster_fdd_shore.core.discrepancy.moves import (
 )
 from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_SWITCHES,
+    OUTSIDE,
     PLAUSIBLE,
     make_case,
     make_mismatch_case,
+    make_outside_case,
     peak_duty_rate,
     plausible_ranges,
+    play,
 )
 from thruster_fdd_shore.core.sim.config import Measurement, load_config, set_effect
 from thruster_fdd_shore.core.sim.effects import make_effect
@@ -92,6 +97,41 @@ def test_mismatch_case_differs_from_its_start() -> None:
         assert float(np.max(np.abs(start_run.rpm - case.clean.rpm))) > 100.0
     with pytest.raises(ValueError, match="cannot be hidden"):
         make_mismatch_case(("esc_lag",), 0)
+
+
+@given(
+    u=st.lists(st.floats(-1.0, 1.0), min_size=1, max_size=60),
+    width=st.floats(0.0, 0.5),
+    repeat=st.integers(1, 4),
+)
+@settings(max_examples=100, deadline=None)
+def test_play_is_a_rate_independent_band_around_the_command(
+    u: list[float], width: float, repeat: int
+) -> None:
+    """``play`` (the ``command_hysteresis`` structure): it stays within ``width / 2`` of the
+    command, moves only when the command pushes it, and does not depend on how fast the
+    command moves (each sample held ``repeat`` times gives the same values)."""
+    x = np.array(u)
+    y = play(x, width)
+    assert np.all(np.abs(y - x) <= width / 2.0 + 1e-12)
+    moved = np.diff(y) != 0.0
+    assert np.all(np.abs(y[1:][moved] - x[1:][moved]) == pytest.approx(width / 2.0))
+    np.testing.assert_array_equal(play(np.repeat(x, repeat), width)[::repeat], y)
+
+
+@pytest.mark.parametrize("kind", OUTSIDE)
+def test_an_outside_case_records_the_command_the_vehicle_sent(kind: str) -> None:
+    """``make_outside_case``: the trace records the command as sent, the start is the t100
+    without the hidden effect, and the thruster's response differs from the start's beyond the
+    noise (the structure is in the data)."""
+    case = make_outside_case(kind, ("dead_time",), 3, duration_s=60.0)
+    again = make_outside_case(kind, ("dead_time",), 3, duration_s=60.0)
+    assert list(case.switches) == [kind]
+    assert case.switches == again.switches
+    plain = make_case(("dead_time",), 3, duration_s=60.0, signal="multilevel")
+    np.testing.assert_array_equal(case.trace.command, plain.trace.command)
+    assert case.start == plain.start
+    assert float(np.max(np.abs(case.clean.rpm - plain.clean.rpm))) > 100.0
 
 
 def test_slew_range_follows_the_peak_duty_rate_of_the_esc() -> None:

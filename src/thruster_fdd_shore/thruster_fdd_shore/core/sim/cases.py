@@ -464,27 +464,45 @@ def make_mismatch_case(
     )
 
 
-OUTSIDE = ("throttle_curve", "rpm_filter")
+OUTSIDE = ("throttle_curve", "rpm_filter", "command_hysteresis")
 """Structures neither the simulator nor the vocabulary has (``make_outside_case``)."""
+
+
+def play(u: np.ndarray, width: float) -> np.ndarray:
+    """The play (backlash) operator: the output follows ``u`` only once ``u`` has moved
+    ``width / 2`` beyond it, shape of ``u``; it starts at ``u[0]``."""
+    out = np.empty_like(u)
+    y, half = float(u[0]), width / 2.0
+    for k, x in enumerate(u):
+        y = min(max(y, x - half), x + half)
+        out[k] = y
+    return out
 
 
 def make_outside_case(kind: str, hidden: tuple[str, ...], seed: int, duration_s: float = 240.0):
     """A t100 case (``make_case``, ``multilevel``) whose thruster has a structure outside the
     simulator and the vocabulary: ``throttle_curve``, the ESC maps the command through
     ``u + a u (1 - |u|)`` (``a`` uniform in 0.15-0.4; the trace records the command sent);
-    ``rpm_filter``, the speed is reported through a first-order filter of 0.2-0.6 s."""
+    ``rpm_filter``, the speed is reported through a first-order filter of 0.2-0.6 s;
+    ``command_hysteresis``, the ESC reads the command through a play of width 0.04-0.12 (a
+    rate-independent memory of the command's last direction)."""
     if kind not in OUTSIDE:
         raise ValueError(f"unknown structure {kind!r}; expected one of {OUTSIDE}")
     case = make_case(hidden, seed, duration_s=duration_s, signal="multilevel")
     rng = np.random.default_rng([seed, 0x0575])
     truth = replace(case.unit, spread=0.0, measurement=load_config("t100").measurement)
     t, u = case.trace.t, case.trace.command
-    if kind == "throttle_curve":
-        a = float(rng.uniform(0.15, 0.4))
-        sent = np.clip(u + a * u * (1.0 - np.abs(u)), -1.0, 1.0)
+    if kind in ("throttle_curve", "command_hysteresis"):
+        if kind == "throttle_curve":
+            a = float(rng.uniform(0.15, 0.4))
+            sent = np.clip(u + a * u * (1.0 - np.abs(u)), -1.0, 1.0)
+            switches = {kind: f"a {a:.3f}"}
+        else:
+            width = float(rng.uniform(0.04, 0.12))
+            sent = play(u, width)
+            switches = {kind: f"width {width:.3f}"}
         trace = replace(simulate(truth, t, sent, seed=seed), command=u)
         clean = replace(simulate(replace(truth, measurement=Measurement()), t, sent), command=u)
-        switches = {"throttle_curve": f"a {a:.3f}"}
     else:
         tau = float(rng.uniform(0.2, 0.6))
         alpha = 1.0 - math.exp(-float(np.median(np.diff(t))) / tau)
