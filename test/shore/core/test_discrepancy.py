@@ -20,7 +20,12 @@ from hypothesis import strategies as st
 
 from thruster_fdd_shore.cli import main
 from thruster_fdd_shore.core.discrepancy.correction import basis, corrected
-from thruster_fdd_shore.core.discrepancy.engine import judge, run_workflow, structured
+from thruster_fdd_shore.core.discrepancy.engine import (
+    _contradicted,
+    judge,
+    run_workflow,
+    structured,
+)
 from thruster_fdd_shore.core.discrepancy.measure import (
     FOLDS,
     Measured,
@@ -29,7 +34,14 @@ from thruster_fdd_shore.core.discrepancy.measure import (
 )
 from thruster_fdd_shore.core.discrepancy.moves import Move, Spec
 from thruster_fdd_shore.core.discrepancy.report import REPORT_FILES
-from thruster_fdd_shore.core.discrepancy.score import Policy, Scored, evidence, gain_of
+from thruster_fdd_shore.core.discrepancy.score import (
+    Policy,
+    Scored,
+    evaluate,
+    evidence,
+    excess,
+    gain_of,
+)
 from thruster_fdd_shore.core.sim.cases import PLAUSIBLE, make_case
 from thruster_fdd_shore.core.sim.config import load_config, perturb_unit, set_effect
 from thruster_fdd_shore.core.sim.effects import make_effect
@@ -153,6 +165,65 @@ def test_the_gain_of_two_models_and_its_variance_follow_the_noise(seed: int, del
     seen = (data.rpm != 0.0) if data.rpm_floor > 0.0 else np.ones(len(data.t), bool)
     expected = delta**2 * (w[0] * seen.sum() + (w[1] + w[2]) * len(data.t))
     assert sv[1].sum() == pytest.approx(expected, rel=1e-9)
+
+
+@given(seed=st.integers(0, 2**31 - 1), loss=st.floats(0.3, 1.0))
+@settings(max_examples=10, deadline=None)
+def test_a_move_that_loses_once_both_are_corrected_is_refused(seed: int, loss: float) -> None:
+    """A move whose plain gain is evidence but which is clearly worse than its parent once both
+    have the generic correction stands in for a difference it does not model: refused; the
+    same move that only ties there is taken (the correction explains as much: not behind)."""
+    data = _null_data()
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(size=(3, len(data.t)))
+    n = len(data.t)
+    parent = Scored(Spec(), (), noise + 1.0, noise)
+    move = Move("add", "deadband")
+    for cand_g, taken in ((noise + loss, False), (noise, True)):
+        cand = Scored(Spec(), (), noise, cand_g, np.ones(n, bool))
+        j = judge(move, cand, parent, data, np.ones(3), Policy(), 3)
+        assert j.significant
+        assert j.accepted == taken
+
+
+@given(seed=st.integers(0, 2**31 - 1), share=st.floats(0.2, 0.5), size=st.floats(1.5, 4.0))
+@settings(max_examples=20, deadline=None)
+def test_the_rest_is_measured_where_asked(seed: int, share: float, size: float) -> None:
+    """``excess`` over the samples ``where`` selects: an offset of ``size`` noise std confined
+    to them shows there as ``1 + size**2`` noise variances and not elsewhere, where the noise
+    alone gives about 1; no sample selected gives 0."""
+    data = _null_data()
+    rng = np.random.default_rng(seed)
+    n = len(data.t)
+    where = rng.random(n) < share
+    r = rng.normal(size=(3, n)) + np.where(where, size, 0.0)
+    scored = Scored(Spec(), (), r, r)
+    assert excess(scored, data, Policy(), where) == pytest.approx(1.0 + size**2, rel=0.25)
+    assert excess(scored, data, Policy(), ~where) == pytest.approx(1.0, rel=0.25)
+    assert excess(scored, data, Policy(), np.zeros(n, bool)) == 0.0
+
+
+def test_absence_is_shown_only_where_the_model_without_the_effect_fits() -> None:
+    """A start deadband twice as wide as the unit's is contradicted by a model without it that
+    fits where the band acts; a model without it that beats the claim there but still leaves
+    structure (the thruster differs there in a way the model lacks) does not show absence."""
+    case = make_case((), 3, duration_s=DURATION_S, signal="lowspeed")
+    t100 = load_config("t100")
+    width = 2.0 * t100.effect("deadband").params()["width"]
+    anchor = set_effect(t100, make_effect("deadband", {"width": width}))
+    data = prepare_measured(case.trace, anchor)
+    policy = Policy()
+    current = evaluate((None, None, data, anchor, policy, None))
+    claim = evaluate((None, current, data, anchor, policy, "deadband"))
+    assert claim.active.sum() > 50
+    noise = np.random.default_rng(3).normal(size=claim.r.shape)
+    fits = Scored(current.spec, current.folds, noise, noise)
+    assert _contradicted(fits, current, "deadband", data, anchor, policy, 1)[0]
+    rest = noise + np.where(claim.active, 3.0, 0.0)
+    assert excess(Scored(current.spec, (), rest, rest), data, policy, claim.active) > 2.0
+    leaves = Scored(current.spec, current.folds, rest, rest)
+    assert gain_of(rest, claim.r, data, np.ones(3), claim.active)[0].sum() > 100.0
+    assert not _contradicted(leaves, current, "deadband", data, anchor, policy, 1)[0]
 
 
 def test_the_generic_correction_takes_a_smooth_curve_but_not_a_deadband() -> None:

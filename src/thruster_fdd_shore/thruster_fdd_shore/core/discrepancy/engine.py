@@ -12,14 +12,15 @@ One score, one acceptance rule, one loop:
   normal quantile of ``Policy.alpha`` shared by the step's moves (Bonferroni). The same test
   applies where an effect acts (its signature must be in the data) and against the generic
   correction (``correction``): a move must gain beyond it, or the correction must not be
-  clearly better than the move. Gains are counted against a control, the model re-fitted as
-  the moves are, so no move is credited with further fitting.
+  clearly better than the move, and it must not lose beyond it. Gains are counted against a
+  control, the model re-fitted as the moves are, so no move is credited with further fitting.
 - **Loop**: forward, of the accepted moves within the score's uncertainty of the largest gain,
   the one adding the fewest parameters (the one-standard-error rule); after every addition,
   and when no move is accepted, a backward step removes what no longer earns its place (and
   the forward steps go on if it removed anything); a start effect only when the data
   contradict its claimed values: its removal passes the acceptance rule against the claim,
-  where the claim acts (a limit that never binds stays) and beyond the generic correction.
+  where the claim acts (a limit that never binds stays) and beyond the generic correction,
+  and the model without it leaves no structured rest where the claim acts.
   When that removes nothing either, an exchange offers each adopted base change's place to
   the other moves. At the end a removed start effect the final model does not contradict is
   restored.
@@ -134,18 +135,25 @@ def _judge_all(
     )
 
 
+_LOSS = np.array([[-1.0], [1.0]])
+"""Turns a per-block gain (``gain_of``) into the loss: the sum negated, the variance kept."""
+
+
 def _verdict(d: np.ndarray, policy: Policy, moves: int) -> tuple:
     """(gain, se, significant, where, beyond, deficit, accepted) of the gains ``d`` (``judge``):
     significant, significant where the move acts (the rest of its gain is the re-fit of the
-    base it allows: a missing effect distorts the fit of the others), and either significant
-    beyond the generic correction or not clearly behind it; a joint move also has evidence of
-    a gain over each of its parts made alone, beyond the correction or not clearly behind it
+    base it allows: a missing effect distorts the fit of the others), not clearly worse once
+    both models have the generic correction (a gain that the correction turns into a loss
+    depends on a difference the move does not model: it stands in for it), and either
+    significant beyond the correction or not clearly behind it; a joint move also has evidence
+    of a gain over each of its parts made alone, beyond the correction or not clearly behind it
     there (each part earns its place beside the other, as a move made on it would)."""
     gain, se, sig = policy.test(d[0], moves)
     where, _, sig_where = policy.test(d[1], moves)
     beyond, _, sig_beyond = policy.test(d[2], moves)
     deficit, _, sig_deficit = policy.test(d[3], moves)
-    accepted = sig and sig_where and (sig_beyond or not sig_deficit)
+    loses = policy.test(d[2] * _LOSS, moves)[2]
+    accepted = sig and sig_where and not loses and (sig_beyond or not sig_deficit)
     for k in range(4, len(d), 3):  # each part of a joint move as the parent
         sig_p, beyond_p, deficit_p = (policy.test(d[k + i], moves)[2] for i in range(3))
         accepted = accepted and sig_p and (beyond_p or not deficit_p)
@@ -292,7 +300,7 @@ def search(
             w = weights(current.r, data)
             sv = gain_of(swapped.r, current.r, data, w)
             ahead = policy.test(sv, len(others))
-            behind = policy.test(sv * np.array([[-1.0], [1.0]]), len(others))
+            behind = policy.test(sv * _LOSS, len(others))
             size = (move.size(anchor), Move("base", change).size(anchor))
             within = not behind[2] and (size[0] < size[1] or (size[0] == size[1] and ahead[0] > 0))
             if not (ahead[2] or within):
@@ -394,12 +402,17 @@ def _contradicted(without: Scored, current: Scored, name, data, anchor, policy, 
     """Whether the data contradict the claim of start effect ``name``, and the claim (``current``
     with ``name`` held at the claimed values): ``without`` (``current`` without it) passes the
     acceptance rule against the claim, the generic correction included, so that a difference
-    of another kind (a throttle curve) does not make a start effect look superfluous."""
+    of another kind (a throttle curve) does not make a start effect look superfluous; and
+    ``without`` explains the data where the claim acts (its held-out residual variance there,
+    ``excess``, is no structure by ``Policy.structured``): where the model cannot, the claim
+    may be wrong or the thruster may have a difference the model lacks there (a play in the
+    command), and absence is not shown."""
     claim = evaluate((None, current, data, anchor, policy, name))
     w = weights(current.r, data)
     without = replace(without, active=claim.active)
     j = judge(Move("remove", name), without, claim, data, w, policy, moves)
-    return j.accepted, claim
+    explained = excess(without, data, policy, claim.active) <= policy.structured
+    return j.accepted and explained, claim
 
 
 def _confirm_removals(current: Scored, data, anchor, policy, say) -> Scored:

@@ -54,7 +54,9 @@ class Policy:
     structured : float
         Held-out residual variance, in noise variances, above which a rest is structure
         whatever the generic correction finds (``excess``): a difference none of its groups
-        can express is still not noise.
+        can express is still not noise. Also the bound within which the model without a start
+        effect must explain the data where the effect's claim acts for the effect to be
+        called superfluous.
     rest_least : float
         Least reduction of the held-out mean-square residual, in noise variances, for which a
         group of the generic correction with evidence marks a structured rest: a systematic
@@ -261,20 +263,23 @@ def acts(sim: dict, other: SimConfig, data: Measured, policy: Policy) -> np.ndar
     return np.any(moved > policy.active_sigma, axis=0)
 
 
-def excess(current: Scored, data: Measured, policy: Policy) -> float:
+def excess(
+    current: Scored, data: Measured, policy: Policy, where: np.ndarray | None = None
+) -> float:
     """Held-out residual variance of ``current`` in noise variances (1 is noise): of each fold,
     the mean over channels of the mean square over its held-out samples the reporting floor
-    leaves informative; the median over the folds, so that one fold whose training blocks do
-    not hold an operating point of its held-out ones (a short trace reversing once) does not
-    make a good model's rest look structured."""
-    seen = _seen(data)
+    leaves informative (and ``where`` selects, shape (n,)); the median over the folds, so that
+    one fold whose training blocks do not hold an operating point of its held-out ones (a short
+    trace reversing once) does not make a good model's rest look structured. 0 when no sample
+    is selected."""
+    seen = _seen(data) & (True if where is None else where[None, :])
     per_fold = []
     for held in policy.folds:
         mask = seen & with_held(data, held).held[None, :]
-        per_fold.append(
-            np.mean([np.mean(current.r[c][mask[c]] ** 2) for c in range(len(CHANNELS))])
-        )
-    return float(np.median(per_fold))
+        chans = [c for c in range(len(CHANNELS)) if mask[c].any()]
+        if chans:
+            per_fold.append(float(np.mean([np.mean(current.r[c][mask[c]] ** 2) for c in chans])))
+    return float(np.median(per_fold)) if per_fold else 0.0
 
 
 def rest_of(current: Scored, data: Measured, policy: Policy) -> dict[str, tuple]:
