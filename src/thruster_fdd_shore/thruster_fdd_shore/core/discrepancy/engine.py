@@ -411,8 +411,7 @@ def _contradicted(without: Scored, current: Scored, name, data, anchor, policy, 
     w = weights(current.r, data)
     without = replace(without, active=claim.active)
     j = judge(Move("remove", name), without, claim, data, w, policy, moves)
-    explained = excess(without, data, policy, claim.active) <= policy.structured
-    return j.accepted and explained, claim
+    return j.accepted and excess(without, data, policy, claim.active) <= policy.structured, claim
 
 
 def _confirm_removals(current: Scored, data, anchor, policy, say) -> Scored:

@@ -124,9 +124,12 @@ class Scored:
     active: np.ndarray | None = None
 
 
-def _seen(data: Measured) -> np.ndarray:
+def _seen(data: Measured, mask: np.ndarray | None = None) -> np.ndarray:
+    """Samples each channel's residual says something about (not censored), and ``mask``
+    selects (shape (n,)), shape (3, n)."""
     seen = _uncensored(data)
-    return np.stack([seen[c] for c in CHANNELS])
+    out = np.stack([seen[c] for c in CHANNELS])
+    return out if mask is None else out & mask[None, :]
 
 
 def weights(r: np.ndarray, data: Measured) -> np.ndarray:
@@ -151,7 +154,7 @@ def effective_samples(r: np.ndarray, data: Measured) -> float:
 
 def sample_ll(r: np.ndarray, data: Measured, w: np.ndarray, mask: np.ndarray | None = None):
     """Held-out log-likelihood of each sample, nats (constant terms dropped), shape (n,)."""
-    seen = _seen(data) & (True if mask is None else mask[None, :])
+    seen = _seen(data, mask)
     return -0.5 * np.sum(np.where(seen, r, 0.0) ** 2 * w[:, None], axis=0)
 
 
@@ -162,7 +165,7 @@ def gain_of(better: np.ndarray, worse: np.ndarray, data: Measured, w, mask=None)
     The variance is the noise's: a sample whose two residuals differ by ``delta`` (noise
     std) contributes ``w * delta**2``, ``w`` its channel's effective sample share.
     """
-    seen = _seen(data) & (True if mask is None else mask[None, :])
+    seen = _seen(data, mask)
     d = sample_ll(better, data, w, mask) - sample_ll(worse, data, w, mask)
     var = np.sum(np.where(seen, better - worse, 0.0) ** 2 * w[:, None], axis=0)
     blocks = block_of(len(d))
@@ -272,7 +275,7 @@ def excess(
     one fold whose training blocks do not hold an operating point of its held-out ones (a short
     trace reversing once) does not make a good model's rest look structured. 0 when no sample
     is selected."""
-    seen = _seen(data) & (True if where is None else where[None, :])
+    seen = _seen(data, where)
     per_fold = []
     for held in policy.folds:
         mask = seen & with_held(data, held).held[None, :]
