@@ -28,7 +28,9 @@ from thruster_fdd_shore.core.discrepancy.engine import (
 )
 from thruster_fdd_shore.core.discrepancy.measure import (
     FOLDS,
+    N_BLOCKS,
     Measured,
+    block_of,
     prepare_measured,
     with_held,
 )
@@ -201,6 +203,32 @@ def test_the_rest_is_measured_where_asked(seed: int, share: float, size: float) 
     assert excess(scored, data, Policy(), where) == pytest.approx(1.0 + size**2, rel=0.25)
     assert excess(scored, data, Policy(), ~where) == pytest.approx(1.0, rel=0.25)
     assert excess(scored, data, Policy(), np.zeros(n, bool)) == 0.0
+
+
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    dense=st.integers(0, N_BLOCKS - 1),
+    sparse=st.integers(1, 8),
+    size=st.floats(2.0, 4.0),
+)
+@settings(max_examples=20, deadline=None)
+def test_a_region_rest_counts_every_sample_whatever_the_folds(
+    seed: int, dense: int, sparse: int, size: float
+) -> None:
+    """A region whose samples sit mostly in one block, with ``sparse`` noise-only samples in
+    every other block, shows its offset of ``size`` noise std: the blocks holding a handful of
+    its samples do not outvote the block holding most."""
+    data = _null_data()
+    rng = np.random.default_rng(seed)
+    n = len(data.t)
+    blocks = block_of(n)
+    where = blocks == dense
+    for b in set(range(N_BLOCKS)) - {dense}:
+        where[rng.choice(np.flatnonzero(blocks == b), sparse, replace=False)] = True
+    r = rng.normal(size=(3, n)) + np.where(blocks == dense, size, 0.0)
+    shares = where.sum(), (where & (blocks == dense)).sum()
+    expected = 1.0 + size**2 * shares[1] / shares[0]
+    assert excess(Scored(Spec(), (), r, r), data, Policy(), where) == pytest.approx(expected, 0.25)
 
 
 def test_absence_is_shown_only_where_the_model_without_the_effect_fits() -> None:

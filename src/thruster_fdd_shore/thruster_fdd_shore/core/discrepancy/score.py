@@ -269,20 +269,32 @@ def acts(sim: dict, other: SimConfig, data: Measured, policy: Policy) -> np.ndar
 def excess(
     current: Scored, data: Measured, policy: Policy, where: np.ndarray | None = None
 ) -> float:
-    """Held-out residual variance of ``current`` in noise variances (1 is noise): of each fold,
-    the mean over channels of the mean square over its held-out samples the reporting floor
-    leaves informative (and ``where`` selects, shape (n,)); the median over the folds, so that
-    one fold whose training blocks do not hold an operating point of its held-out ones (a short
-    trace reversing once) does not make a good model's rest look structured. 0 when no sample
-    is selected."""
+    """Held-out residual variance of ``current`` in noise variances (1 is noise), the mean over
+    channels of a mean square over the held-out samples the reporting floor leaves informative.
+
+    Over the whole trace, the median over the folds of each fold's mean square, so that one fold
+    whose training blocks do not hold an operating point of its held-out ones (a short trace
+    reversing once) does not make a good model's rest look structured. Over a region (the
+    samples ``where`` selects, shape (n,)), the mean square over all its samples: a region sits
+    in few blocks, and folds holding a handful of its samples must not outvote the fold holding
+    most. 0 when no sample is selected.
+    """
     seen = _seen(data, where)
-    per_fold = []
-    for held in policy.folds:
-        mask = seen & with_held(data, held).held[None, :]
-        chans = [c for c in range(len(CHANNELS)) if mask[c].any()]
-        if chans:
-            per_fold.append(float(np.mean([np.mean(current.r[c][mask[c]] ** 2) for c in chans])))
+    if where is not None:
+        region = _mean_square(current.r, seen)
+        return 0.0 if region is None else region
+    per_fold = [
+        _mean_square(current.r, seen & with_held(data, h).held[None, :]) for h in policy.folds
+    ]
+    per_fold = [m for m in per_fold if m is not None]
     return float(np.median(per_fold)) if per_fold else 0.0
+
+
+def _mean_square(r: np.ndarray, mask: np.ndarray) -> float | None:
+    """Mean over the channels ``mask`` (shape (3, n)) selects any sample of, of ``r``'s mean
+    square over them; None when it selects none."""
+    chans = [c for c in range(len(CHANNELS)) if mask[c].any()]
+    return float(np.mean([np.mean(r[c][mask[c]] ** 2) for c in chans])) if chans else None
 
 
 def rest_of(current: Scored, data: Measured, policy: Policy) -> dict[str, tuple]:
