@@ -10,9 +10,11 @@ family.
   effect vocabulary (``cases.MISMATCH_SWITCHES``), the start keeps only ``esc_lag``; single
   and paired hidden effects, null traces, and starts holding an effect the thruster lacks
   (``superfluous: NAME``). The ``mixed`` signal; default 600 s traces.
-- ``throttle_curve`` / ``rpm_filter`` / ``command_hysteresis``: t100 thrusters with a structure
-  neither the simulator nor the vocabulary has (``cases.make_outside_case``), null traces and a
-  hidden deadband, dead time or sag. ``multilevel`` commands; default 240 s traces.
+- ``throttle_curve``, ``rpm_filter``, ``command_hysteresis``, ``reverse_limit``,
+  ``command_steps``, ``rpm_delay``, ``current_filter`` (``cases.OUTSIDE``): t100 thrusters with
+  a structure neither the simulator nor the vocabulary has (``cases.make_outside_case``), null
+  traces and a hidden deadband, dead time or sag. ``multilevel`` commands; default 240 s
+  traces.
 
 Per case and seed it runs the workflow and records what was hidden, named (missing and
 superfluous), the parameter errors and the gap before and after; it prints one Markdown table
@@ -125,11 +127,17 @@ def _visibility(case: Case, data: Measured, seed: int) -> dict[str, dict[str, fl
     (``fit``) and the held-out samples (``held``). Under about 1 no method can name it from
     this trace (a current limit the trace never reaches): the case, not the workflow, is at
     fault; under 1 on the fit or the held-out samples alone, the calibration cannot fit it or
-    the held-out score cannot show it (a current limit reached only in held-out blocks)."""
+    the held-out score cannot show it (a current limit reached only in held-out blocks). Beside
+    a structure outside the vocabulary both responses go through it."""
     out = {}
     for name in case.hidden:
         bare = replace(without_effects(case.unit, (name,)), spread=0.0, measurement=Measurement())
-        sim = simulate(bare, case.clean.t, case.clean.command, seed=seed)
+        t, u = case.clean.t, case.clean.command
+        sim = (
+            case.structure.respond(bare, t, u, seed)
+            if case.structure
+            else simulate(bare, t, u, seed=seed)
+        )
         diff = {c: getattr(sim, c) - getattr(case.clean, c) for c in CHANNELS}
         out[name] = {
             part: _noise_units(lambda c, d=diff, m=mask: d[c][m], data.sigma, CHANNELS)

@@ -35,7 +35,9 @@ from thruster_fdd_shore.core.discrepancy.moves import (
 from thruster_fdd_shore.core.sim.cases import (
     MISMATCH_SWITCHES,
     OUTSIDE,
+    OUTSIDE_RANGES,
     PLAUSIBLE,
+    Structure,
     make_case,
     make_mismatch_case,
     make_outside_case,
@@ -123,15 +125,70 @@ def test_play_is_a_rate_independent_band_around_the_command(
 def test_an_outside_case_records_the_command_the_vehicle_sent(kind: str) -> None:
     """``make_outside_case``: the trace records the command as sent, the start is the t100
     without the hidden effect, and the thruster's response differs from the start's beyond the
-    noise (the structure is in the data)."""
-    case = make_outside_case(kind, ("dead_time",), 3, duration_s=60.0)
-    again = make_outside_case(kind, ("dead_time",), 3, duration_s=60.0)
+    noise in the channel the structure acts on (the structure is in the data)."""
+    case = make_outside_case(kind, ("dead_time",), 3, duration_s=DURATION_S)
+    again = make_outside_case(kind, ("dead_time",), 3, duration_s=DURATION_S)
     assert list(case.switches) == [kind]
     assert case.switches == again.switches
-    plain = make_case(("dead_time",), 3, duration_s=60.0, signal="multilevel")
+    assert case.structure is not None
+    assert case.structure.kind == kind
+    plain = make_case(("dead_time",), 3, duration_s=DURATION_S, signal="multilevel")
     np.testing.assert_array_equal(case.trace.command, plain.trace.command)
     assert case.start == plain.start
-    assert float(np.max(np.abs(case.clean.rpm - plain.clean.rpm))) > 100.0
+    channel = case.structure.channel or "rpm"
+    noise = {"rpm": 15.0, "current": 0.05}[channel]
+    diff = getattr(case.clean, channel) - getattr(plain.clean, channel)
+    assert float(np.max(np.abs(diff))) > 5.0 * noise
+
+
+@given(
+    kind=st.sampled_from(OUTSIDE),
+    share=st.floats(0.0, 1.0),
+    u=st.lists(st.floats(-1.0, 1.0), min_size=2, max_size=40),
+)
+@settings(max_examples=100, deadline=None)
+def test_a_command_structure_keeps_the_command_in_range_and_its_direction(
+    kind: str, share: float, u: list[float]
+) -> None:
+    """Every structure at any value of its range: the ESC receives a command in -1..1 that never
+    reverses the one sent (a structure distorts, it does not invert), and a memoryless map is
+    monotone (a larger command never gives less)."""
+    _name, lo, hi = OUTSIDE_RANGES[kind]
+    structure = Structure(kind, lo + share * (hi - lo))
+    x = np.array(u)
+    y = structure.received(x)
+    assert y.shape == x.shape
+    assert np.all(np.abs(y) <= 1.0)
+    assert np.all(x * y >= -(structure.value / 2.0 if kind == "command_hysteresis" else 0.0))
+    if kind != "command_hysteresis":
+        order = np.argsort(x, kind="stable")
+        assert np.all(np.diff(y[order]) >= 0.0)
+
+
+@given(
+    kind=st.sampled_from([k for k in OUTSIDE if Structure(k, 0.3).channel]),
+    share=st.floats(0.0, 1.0),
+    level=st.floats(-4000.0, 4000.0),
+)
+@settings(max_examples=50, deadline=None)
+def test_a_sensor_structure_reports_a_steady_value_right(
+    kind: str, share: float, level: float
+) -> None:
+    """A sensor filter or delay changes only its channel, and only while it moves: a value held
+    long enough is reported as it is."""
+    _name, lo, hi = OUTSIDE_RANGES[kind]
+    structure = Structure(kind, lo + share * (hi - lo))
+    t = np.arange(0.0, 30.0, 0.1)
+    step = np.where(t < 5.0, 0.0, level)
+    held = simulate(load_config("t100"), t, np.zeros_like(t))
+    trace = replace(held, rpm=step, current=step / 1000.0)
+    out = structure.sensed(trace)
+    for name in ("t", "command", "voltage", "rpm", "current"):
+        if name != structure.channel:
+            np.testing.assert_array_equal(getattr(out, name), getattr(trace, name))
+    reported = getattr(out, structure.channel)
+    assert reported[-1] == pytest.approx(getattr(trace, structure.channel)[-1], abs=1e-6)
+    assert reported[0] == 0.0
 
 
 def test_slew_range_follows_the_peak_duty_rate_of_the_esc() -> None:

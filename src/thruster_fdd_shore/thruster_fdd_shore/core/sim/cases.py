@@ -2,14 +2,16 @@
 
 A case hides effects from the model: the "measured" trace is simulated (with unit spread,
 noise, quantisation and outliers) with the hidden effects set to random plausible values, and
-the model starts without them. Two families:
+the model starts without them. Three families:
 
 - exact base (``make_case``): the measured unit is the t100 preset's (plus spread); only the
   hidden effects differ from the start;
 - mismatch (``make_mismatch_case``): the measured thruster's base physics also differ from the
   start preset (``t100`` or ``t200``) by a random combination of structural switches outside
   the effect vocabulary (``MISMATCH_SWITCHES``), and the start may hold an effect the thruster
-  lacks (superfluous).
+  lacks (superfluous);
+- outside (``make_outside_case``): the measured t100 sits behind a structure neither the
+  simulator nor the vocabulary has, on the command or on a sensor (``Structure``).
 """
 
 from __future__ import annotations
@@ -98,6 +100,9 @@ class Case:
     unit : SimConfig or None
         The simulated unit itself (after spread): the truth a named parameter is checked
         against, with its base (a friction torque is identified only relative to ``k_e``).
+    structure : Structure or None
+        The structure outside the simulator and the vocabulary between the vehicle and the
+        unit (outside family; ``make_outside_case``).
     """
 
     trace: Trace
@@ -108,6 +113,7 @@ class Case:
     superfluous: tuple[str, ...] = ()
     switches: dict[str, str] = field(default_factory=dict)
     unit: SimConfig | None = None
+    structure: Structure | None = None
 
 
 ABSENT: dict[str, tuple[str, ...]] = {
@@ -464,7 +470,20 @@ def make_mismatch_case(
     )
 
 
-OUTSIDE = ("throttle_curve", "rpm_filter", "command_hysteresis")
+OUTSIDE_RANGES: dict[str, tuple[str, float, float]] = {
+    "throttle_curve": ("a", 0.15, 0.4),
+    "rpm_filter": ("tau", 0.2, 0.6),
+    "command_hysteresis": ("width", 0.04, 0.12),
+    "reverse_limit": ("reverse max", 0.55, 0.8),
+    "command_steps": ("step", 0.04, 0.08),
+    "rpm_delay": ("delay", 0.2, 0.5),
+    "current_filter": ("tau", 0.2, 0.6),
+}
+"""Structure -> (its parameter, low, high): the uniform range ``make_outside_case`` draws from
+(``a`` and ``width``, ``reverse max`` and ``step`` in command units; ``tau`` and ``delay`` in s)."""
+
+
+OUTSIDE = tuple(OUTSIDE_RANGES)
 """Structures neither the simulator nor the vocabulary has (``make_outside_case``)."""
 
 
@@ -479,36 +498,89 @@ def play(u: np.ndarray, width: float) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class Structure:
+    """A structure outside the simulator and the vocabulary, between the vehicle and the
+    thruster (``OUTSIDE_RANGES``): the ESC receives ``received(u)`` for the command ``u`` the
+    vehicle sent, or a sensor reports a channel through a filter or a delay (``sensed``).
+
+    ``throttle_curve``: ``u + a u (1 - |u|)``; ``command_hysteresis``: a play of ``width``
+    (``play``); ``reverse_limit``: reverse commands capped at ``-reverse max`` (a firmware
+    limit on reverse power); ``command_steps``: the command resolved in steps of ``step`` (a
+    coarse command protocol); ``rpm_filter`` / ``current_filter``: the channel reported through
+    a first-order filter of time constant ``tau``; ``rpm_delay``: the speed reported ``delay``
+    late (rounded to whole samples).
+    """
+
+    kind: str
+    value: float
+
+    def received(self, u: np.ndarray) -> np.ndarray:
+        """The command the ESC acts on, shape of ``u``."""
+        v = self.value
+        if self.kind == "throttle_curve":
+            return np.clip(u + v * u * (1.0 - np.abs(u)), -1.0, 1.0)
+        if self.kind == "command_hysteresis":
+            return play(u, v)
+        if self.kind == "reverse_limit":
+            return np.maximum(u, -v)
+        if self.kind == "command_steps":
+            return np.clip(np.round(u / v) * v, -1.0, 1.0)
+        return u
+
+    @property
+    def channel(self) -> str | None:
+        """The channel a sensor structure reports (None: a command structure)."""
+        return {"rpm_filter": "rpm", "rpm_delay": "rpm", "current_filter": "current"}.get(self.kind)
+
+    def sensed(self, trace: Trace, measurement: Measurement | None = None) -> Trace:
+        """``trace`` as the structure's sensor reports it, on the grid of ``measurement``'s
+        step for that channel (the sensor digitises after its filter; None: no grid)."""
+        if self.channel is None:
+            return trace
+        x = getattr(trace, self.channel)
+        dt = float(np.median(np.diff(trace.t)))
+        if self.kind == "rpm_delay":
+            k = max(1, round(self.value / dt))
+            y = np.concatenate([np.full(k, x[0]), x[:-k]])
+        else:
+            alpha = 1.0 - math.exp(-dt / self.value)
+            y = lfilter([alpha], [1.0, alpha - 1.0], x)
+        if measurement is not None:
+            step = measurement.rpm_step if self.channel == "rpm" else measurement.current_step_a
+            y = np.round(y / step) * step if step > 0.0 else y
+        return replace(trace, **{self.channel: y})
+
+    def respond(self, config: SimConfig, t: np.ndarray, u: np.ndarray, seed: int = 0) -> Trace:
+        """``config`` simulated behind the structure for the sent command ``u`` (recorded as
+        the trace's command), its sensor on ``config.measurement``'s grid."""
+        trace = replace(simulate(config, t, self.received(u), seed=seed), command=u)
+        return self.sensed(trace, config.measurement)
+
+    def describe(self) -> str:
+        """``parameter value`` as the study's switches record it."""
+        unit = "" if self.channel is None else " s"
+        return f"{OUTSIDE_RANGES[self.kind][0]} {self.value:.3f}{unit}"
+
+
 def make_outside_case(kind: str, hidden: tuple[str, ...], seed: int, duration_s: float = 240.0):
     """A t100 case (``make_case``, ``multilevel``) whose thruster has a structure outside the
-    simulator and the vocabulary: ``throttle_curve``, the ESC maps the command through
-    ``u + a u (1 - |u|)`` (``a`` uniform in 0.15-0.4; the trace records the command sent);
-    ``rpm_filter``, the speed is reported through a first-order filter of 0.2-0.6 s;
-    ``command_hysteresis``, the ESC reads the command through a play of width 0.04-0.12 (a
-    rate-independent memory of the command's last direction)."""
+    simulator and the vocabulary (``Structure``, its parameter uniform in ``OUTSIDE_RANGES``;
+    the trace records the command the vehicle sent). A command structure's unit is simulated
+    behind it; a sensor structure reports ``make_case``'s traces through it. The case's
+    ``structure`` holds it."""
     if kind not in OUTSIDE:
         raise ValueError(f"unknown structure {kind!r}; expected one of {OUTSIDE}")
     case = make_case(hidden, seed, duration_s=duration_s, signal="multilevel")
     rng = np.random.default_rng([seed, 0x0575])
-    truth = replace(case.unit, spread=0.0, measurement=load_config("t100").measurement)
+    structure = Structure(kind, float(rng.uniform(*OUTSIDE_RANGES[kind][1:])))
     t, u = case.trace.t, case.trace.command
-    if kind in ("throttle_curve", "command_hysteresis"):
-        if kind == "throttle_curve":
-            a = float(rng.uniform(0.15, 0.4))
-            sent = np.clip(u + a * u * (1.0 - np.abs(u)), -1.0, 1.0)
-            switches = {kind: f"a {a:.3f}"}
-        else:
-            width = float(rng.uniform(0.04, 0.12))
-            sent = play(u, width)
-            switches = {kind: f"width {width:.3f}"}
-        trace = replace(simulate(truth, t, sent, seed=seed), command=u)
-        clean = replace(simulate(replace(truth, measurement=Measurement()), t, sent), command=u)
+    if structure.channel is None:
+        truth = replace(case.unit, spread=0.0, measurement=load_config("t100").measurement)
+        trace = structure.respond(truth, t, u, seed=seed)
+        clean = structure.respond(replace(truth, measurement=Measurement()), t, u)
     else:
-        tau = float(rng.uniform(0.2, 0.6))
-        alpha = 1.0 - math.exp(-float(np.median(np.diff(t))) / tau)
-        trace, clean = case.trace, case.clean
-        rpm = lfilter([alpha], [1.0, alpha - 1.0], trace.rpm)
-        trace = replace(trace, rpm=np.round(rpm))
-        clean = replace(clean, rpm=lfilter([alpha], [1.0, alpha - 1.0], clean.rpm))
-        switches = {"rpm_filter": f"tau {tau:.3f} s"}
-    return replace(case, trace=trace, clean=clean, switches=switches)
+        trace = structure.sensed(case.trace, case.unit.measurement)
+        clean = structure.sensed(case.clean)
+    switches = {kind: structure.describe()}
+    return replace(case, trace=trace, clean=clean, switches=switches, structure=structure)
