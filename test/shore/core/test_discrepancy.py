@@ -152,6 +152,33 @@ def test_a_move_is_credited_with_the_re_fit_it_allows(seed: int, share: float) -
         assert j.accepted == taken
 
 
+@given(seed=st.integers(0, 2**31 - 1), i_max=st.floats(6.5, 7.5))
+@settings(max_examples=3, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate])
+def test_a_move_acts_on_held_out_samples_only_where_its_fold_saw_it_act(
+    seed: int, i_max: float
+) -> None:
+    """A current limit that binds in one stretch of the trace only: the fold holding that
+    stretch out fits the limit to samples that never show it, so whatever value it keeps
+    there is no prediction, and the move acts nowhere. Shown in two stretches in different
+    folds, each fold's fit sees it, and it acts in both."""
+    t100 = load_config("t100")
+    unit = perturb_unit(set_effect(t100, make_effect("current_limit", {"i_max_a": i_max})), seed)
+    start = replace(t100, effects=tuple(e for e in t100.effects if e.name != "current_limit"))
+    t = np.arange(600) / 10.0
+    blocks = block_of(len(t))
+    policy = Policy()
+    for pulses in ((25.0,), (7.0, 25.0)):  # blocks 4, and 1 and 4: in different folds
+        u = np.where((t // 2) % 2 == 0, 0.2, 0.4)
+        for t0 in pulses:
+            u[(t >= t0) & (t < t0 + 2.0)] = 1.0
+        data = prepare_measured(simulate(unit, t, u, seed=seed), start)
+        current = evaluate((None, None, data, start, policy, None))
+        scored = evaluate((Move("add", "current_limit"), current, data, start, policy, None))
+        pulsed = {int(blocks[np.searchsorted(t, t0)]) for t0 in pulses}
+        acting = {int(b) for b in np.unique(blocks[scored.active])}
+        assert acting == (pulsed if len(pulses) > 1 else set())
+
+
 @given(seed=st.integers(0, 2**31 - 1), delta=st.floats(0.01, 3.0))
 @settings(max_examples=20, deadline=None)
 def test_the_gain_of_two_models_and_its_variance_follow_the_noise(seed: int, delta: float) -> None:

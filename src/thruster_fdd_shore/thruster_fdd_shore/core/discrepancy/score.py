@@ -113,7 +113,8 @@ class Scored:
         Normalised residual of every sample from the fold holding it out, without and with
         the static generic correction.
     active : np.ndarray of bool, shape (n,), or None
-        For an addition or a base change, where it acts; for a claim (``evaluate``'s
+        For an addition or a base change, where it acts: the held-out samples it acts on in
+        each fold whose own fit samples it acts on too; for a claim (``evaluate``'s
         ``fixed``), where the claimed effect acts.
     """
 
@@ -254,7 +255,10 @@ def evaluate(job: tuple) -> Scored:
         r_g[:, fold.held] = corrected(res, seen, fold.fit, fold.held, phi)[:, fold.held]
         if active is not None:
             other = without_effects(fit.config, (fixed,)) if fixed else undo(move, fit.config, base)
-            active[fold.held] = acts(sim, other, data, policy)[fold.held]
+            where = acts(sim, other, data, policy)
+            # A fitted move predicts its held-out samples only if its fold saw it act.
+            shown = fixed is not None or bool(where[fold.fit].any())
+            active[fold.held] = where[fold.held] & shown
     return Scored(spec, tuple(folds), r, r_g, active)
 
 
