@@ -153,7 +153,7 @@ def test_a_move_is_credited_with_the_re_fit_it_allows(seed: int, share: float) -
 
 
 @given(seed=st.integers(0, 2**31 - 1), i_max=st.floats(6.5, 7.5))
-@settings(max_examples=3, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate])
+@EXAMPLES
 def test_a_move_acts_on_held_out_samples_only_where_its_fold_saw_it_act(
     seed: int, i_max: float
 ) -> None:
