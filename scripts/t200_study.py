@@ -185,6 +185,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--onset-s", type=float, default=120.0, help="fault onset, s")
     p.add_argument("--jobs", type=int, default=2, help="worker processes")
     args = p.parse_args(argv)
+    if not world.DATA.is_dir():
+        print(f"t200_study: the T200 workbook sheets are not at {world.DATA}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     models = args.models or train(args.out, args.train_unit)
     jobs = [

@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import math
+import sys
 import zlib
 from pathlib import Path
 
@@ -29,6 +31,7 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "t200"
 RATE = 10.0
 
 
+@functools.cache
 def maps() -> tuple[RegularGridInterpolator, RegularGridInterpolator]:
     """rpm and current (A) over (command -1..1, supply V) from the workbook's sheets."""
     volts = [10, 12, 14, 16, 18, 20]
@@ -45,7 +48,6 @@ def maps() -> tuple[RegularGridInterpolator, RegularGridInterpolator]:
     )
 
 
-RPM, CUR = maps()
 FAULTS = {  # rpm factor, current factor, ripple amplitude (share of current)
     "broken_blade_1": (1.05, 0.82, 0.10),
     "broken_blade_2": (1.10, 0.66, 0.16),
@@ -70,6 +72,7 @@ def simulate(
     fault_at: float | None = None, fault: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """rpm, current (A) and bus voltage (V) at RATE for commands (n,) and a supply (n,), V."""
+    rpm_map, cur_map = maps()
     u = unit(seed)
     rng = np.random.default_rng(noise_seed)
     n = len(cmd)
@@ -91,9 +94,9 @@ def simulate(
         v = supply[i] - u["sag"] * cur_prev
         v = float(np.clip(v, 10.0, 20.0))
         c = float(np.clip(ce, -1, 1))
-        rpm = float(RPM((c, v))) * u["g"] * rf
+        rpm = float(rpm_map((c, v))) * u["g"] * rf
         acc = (rpm - prev_rpm) / dt
-        cur = float(CUR((c, v))) * u["h"] * cf + u["kacc"] * abs(acc) * 0.01 * abs(rpm) / 1000
+        cur = float(cur_map((c, v))) * u["h"] * cf + u["kacc"] * abs(acc) * 0.01 * abs(rpm) / 1000
         phase += abs(rpm) / 60 * 2 * math.pi * dt
         cur *= 1 + rip * math.sin(phase + rng.uniform(0, 0.3))
         cur += 0.15  # idle electronics
@@ -196,6 +199,9 @@ def main() -> None:
     p.add_argument("--runs", type=int, default=3)
     p.add_argument("--seconds", type=float, default=3600)
     a = p.parse_args()
+    if not DATA.is_dir():
+        print(f"t200_world: the T200 workbook sheets are not at {DATA}", file=sys.stderr)
+        sys.exit(2)
     a.out.mkdir(parents=True, exist_ok=True)
     if a.what in ("paper", "rich"):
         units = range(a.first_seed, a.first_seed + (3 if a.what == "paper" else 6))
