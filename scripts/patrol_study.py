@@ -103,7 +103,11 @@ def healthy_run(job: dict[str, Any]) -> dict[str, Any]:
     trace = patrol_trace(
         variant_config(job["variant"]), job["seed"], job["duration_s"], drift=job["drift"]
     )
-    decisions = trace_decisions(trace, nominal, classifier)
+    return {**job, **healthy_metrics(trace_decisions(trace, nominal, classifier))}
+
+
+def healthy_metrics(decisions: list[Decision]) -> dict[str, Any]:
+    """Fault time (s) and episodes, unknown share and reasons of decisions on a healthy unit."""
     labels = [d.label for d in decisions]
     fault = [label in FAULT_CLASSES for label in labels]
     episodes = sum(1 for i, f in enumerate(fault) if f and (i == 0 or not fault[i - 1]))
@@ -112,7 +116,6 @@ def healthy_run(job: dict[str, Any]) -> dict[str, Any]:
         if d.label == UNKNOWN:
             reasons[d.reason] = reasons.get(d.reason, 0) + 1
     return {
-        **job,
         "decisions": len(decisions),
         "fault_s": float(sum(fault)) * _hop(decisions),
         "fault_episodes": episodes,
@@ -121,6 +124,33 @@ def healthy_run(job: dict[str, Any]) -> dict[str, Any]:
         "reasons": reasons,
         "max_fault_evidence": max((d.fault_evidence for d in decisions), default=0.0),
     }
+
+
+def detection_metrics(decisions: list[Decision], onset: float, fault: str) -> dict[str, Any]:
+    """When a fault starting at ``onset`` (s) was published, after how much covered work, and
+    how much of the time after it the label was ``fault``."""
+    after = [d for d in decisions if d.t_start_s >= onset]
+    informative = [d for d in after if d.reason not in (OUTSIDE_TRAINING, LOW_EXCITATION)]
+    working = informative[0].t_s if informative else None
+    first = next((d for d in after if d.label in FAULT_CLASSES), None)
+    detected = None if first is None else first.t_s
+    out: dict[str, Any] = {
+        "first_covered_working_s": working,
+        "detected_s": detected,
+        "first_fault": None if first is None else first.label,
+        "delay_s": None if detected is None or working is None else detected - working,
+        "covered_delay_s": None
+        if detected is None
+        else _hop(decisions) * sum(1 for d in informative if d.t_s < detected),
+    }
+    if detected is not None:
+        later = [d for d in after if d.t_s >= detected]
+        right = sum(d.label == fault for d in later)
+        labelled = sum(d.label != UNKNOWN for d in later)
+        out["right_of_all"] = right / len(later)
+        out["right_of_labelled"] = right / max(labelled, 1)
+        out["unknown_after"] = 1.0 - labelled / len(later)
+    return out
 
 
 def _hop(decisions: list[Decision]) -> float:
@@ -141,34 +171,13 @@ def faulty_run(job: dict[str, Any]) -> dict[str, Any]:
     )
     decisions = trace_decisions(trace, nominal, classifier)
     onset = job["onset_s"]
-    before = [d for d in decisions if d.t_s < onset]
-    after = [d for d in decisions if d.t_start_s >= onset]
-    working = next(
-        (d.t_s for d in after if d.reason not in (OUTSIDE_TRAINING, LOW_EXCITATION)), None
-    )
-    detected = next((d.t_s for d in after if d.label in FAULT_CLASSES), None)
-    informative = [d for d in after if d.reason not in (OUTSIDE_TRAINING, LOW_EXCITATION)]
-    covered_delay = (
-        None
-        if detected is None
-        else _hop(decisions) * sum(1 for d in informative if d.t_s < detected)
-    )
-    out: dict[str, Any] = {
+    return {
         **job,
-        "false_before_onset_s": float(sum(d.label in FAULT_CLASSES for d in before)),
-        "first_covered_working_s": working,
-        "detected_s": detected,
-        "delay_s": None if detected is None or working is None else detected - working,
-        "covered_delay_s": covered_delay,
+        "false_before_onset_s": float(
+            sum(d.label in FAULT_CLASSES for d in decisions if d.t_s < onset)
+        ),
+        **detection_metrics(decisions, onset, job["fault"]),
     }
-    if detected is not None:
-        later = [d for d in after if d.t_s >= detected]
-        right = sum(d.label == job["fault"] for d in later)
-        labelled = sum(d.label != UNKNOWN for d in later)
-        out["right_of_all"] = right / len(later)
-        out["right_of_labelled"] = right / max(labelled, 1)
-        out["unknown_after"] = 1.0 - labelled / len(later)
-    return out
 
 
 def calibration_windows(job: dict[str, Any]) -> dict[str, Any]:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -28,26 +27,22 @@ from typing import Any
 
 import numpy as np
 import t200_world as world
-from patrol_study import DETECT_WITHIN_S, poisson_upper
+from patrol_study import DETECT_WITHIN_S, detection_metrics, healthy_metrics, poisson_upper
 
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.diagnosis.model import ClassifierModel
-from thruster_fdd.core.diagnosis.stream import LOW_EXCITATION, OUTSIDE_TRAINING
-from thruster_fdd.core.labels import FAULT_CLASSES, UNKNOWN
+from thruster_fdd.core.labels import FAULT_CLASSES
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.traces.data import Trace
 from thruster_fdd_shore.cli import main as cli
 from thruster_fdd_shore.core.diagnosis.offline import trace_decisions
-
-FAULT_SUPPLY_V = 15.3
 
 
 def train(out: Path, first_unit: int) -> Path:
     """Write the rich training traces of six units and train both models into ``out/models``."""
     data = out / "train"
     data.mkdir(parents=True, exist_ok=True)
-    run = [sys.executable, str(Path(world.__file__)), "rich", "--out", str(data)]
-    subprocess.run([*run, "--first-seed", str(first_unit)], check=True)
+    world.write_training(data, range(first_unit, first_unit + 6), paper=False)
     models = out / "models"
     healthy = sorted(str(p) for p in data.glob("nominal_*.csv"))
     for args in (
@@ -63,51 +58,26 @@ def train(out: Path, first_unit: int) -> Path:
 
 
 def patrol_run(job: dict[str, Any]) -> dict[str, Any]:
-    """One patrol of one unit through the vehicle's code: fault time, unknown share, delays."""
-    seed, seconds, fault = job["seed"], job["seconds"], job["fault"]
-    cmd = world.patrol(seconds, 900 + seed)
-    supply = (
-        np.linspace(16.0, 12.5, len(cmd)) if job["drift"] else np.full(len(cmd), FAULT_SUPPLY_V)
+    """One patrol of one unit through the vehicle's code: the healthy part's fault time and
+    unknown share (``patrol_study.healthy_metrics``); after an onset, the detection
+    (``patrol_study.detection_metrics``)."""
+    fault, onset = job["fault"], job["onset_s"]
+    cmd, rpm, cur, v = world.patrol_unit(
+        job["seed"], job["seconds"], drift=job["drift"], fault=fault, fault_at=onset
     )
-    onset = job["onset_s"] if fault else None
-    rpm, cur, v = world.simulate(cmd, supply, "nominal_15v", seed, 77 + seed, onset, fault)
     t = np.arange(len(cmd)) / world.RATE
     trace = Trace(t=t, command=cmd, voltage=v, rpm=rpm, current=cur)
     models = Path(job["models"])
     decisions = trace_decisions(
         trace, NominalModel.load(models / "nominal"), ClassifierModel.load(models / "classifier")
     )
-    hop = float(np.median(np.diff([d.t_s for d in decisions])))
-    healthy_end = onset if onset is not None else np.inf
-    before = [d for d in decisions if d.t_s < healthy_end]
-    is_fault = [d.label in FAULT_CLASSES for d in before]
+    healthy_end = min(onset, job["seconds"]) if fault else job["seconds"]
     out: dict[str, Any] = {
         **{k: job[k] for k in ("seed", "fault", "drift", "seconds")},
-        "healthy_s": float(min(seconds, healthy_end)),
-        "fault_s": hop * sum(is_fault),
-        "fault_episodes": sum(
-            1 for i, f in enumerate(is_fault) if f and not (i and is_fault[i - 1])
-        ),
-        "fault_labels": sorted({d.label for d in before if d.label in FAULT_CLASSES}),
-        "unknown_fraction": sum(d.label == UNKNOWN for d in before) / max(len(before), 1),
-        "max_fault_evidence": max((d.fault_evidence for d in before), default=0.0),
+        "healthy_s": float(healthy_end),
+        **healthy_metrics([d for d in decisions if d.t_s < healthy_end]),
     }
-    if onset is None:
-        return out
-    after = [d for d in decisions if d.t_start_s >= onset]
-    covered = [d for d in after if d.reason not in (OUTSIDE_TRAINING, LOW_EXCITATION)]
-    first = next((d for d in after if d.label in FAULT_CLASSES), None)
-    out["first_fault"] = first.label if first else None
-    out["covered_delay_s"] = (
-        None if first is None else hop * sum(1 for d in covered if d.t_s < first.t_s)
-    )
-    out["delay_s"] = None if first is None or not covered else first.t_s - covered[0].t_s
-    if first is not None:
-        later = [d for d in after if d.t_s >= first.t_s]
-        labelled = [d for d in later if d.label != UNKNOWN]
-        out["right_of_all"] = sum(d.label == fault for d in later) / len(later)
-        out["right_of_labelled"] = sum(d.label == fault for d in labelled) / max(len(labelled), 1)
-    return out
+    return {**out, **detection_metrics(decisions, onset, fault)} if fault else out
 
 
 def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -192,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     models = args.models or train(args.out, args.train_unit)
     jobs = [
         {"seed": args.healthy_unit + i, "fault": None, "drift": i % 2 == 1,
-         "seconds": args.healthy_s, "onset_s": None, "models": str(models)}
+         "seconds": args.healthy_s, "onset_s": args.onset_s, "models": str(models)}
         for i in range(args.healthy_runs)
     ] + [
         {"seed": args.faulty_unit + k, "fault": list(world.FAULTS)[k % len(world.FAULTS)],

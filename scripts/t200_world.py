@@ -191,6 +191,42 @@ VOLT = {
 }
 
 
+FAULT_SUPPLY_V = 15.3
+"""Supply of a faulty patrol, V: the faults of this world's training are at 15 V (+ 0.3)."""
+
+
+def patrol_unit(
+    seed: int, seconds: float, *, drift: bool, fault: str | None = None, fault_at: float = 120.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Command, rpm, current (A) and bus voltage (V) of unit ``seed`` on its own patrol.
+
+    The supply drifts from 16 to 12.5 V with ``drift``, else stays at ``FAULT_SUPPLY_V``; with
+    ``fault`` the unit turns ``fault`` at ``fault_at`` s.
+    """
+    cmd = patrol(seconds, 900 + seed)
+    supply = np.linspace(16.0, 12.5, len(cmd)) if drift else np.full(len(cmd), FAULT_SUPPLY_V)
+    at = fault_at if fault else None
+    return (cmd, *simulate(cmd, supply, "nominal_15v", seed, 77 + seed, at, fault))
+
+
+def write_training(out: Path, units: range, paper: bool) -> None:
+    """Labelled trace CSVs of ``units`` for every class: the paper's 0.01 Hz sine of 200 s, or
+    a sine, steps and a patrol (``paper`` False); the supply 0.3 V above each class's."""
+    for s in units:
+        profiles = (
+            {"sine": sine(200)}
+            if paper
+            else {"sine": sine(300), "steps": steps(300, s), "patrol": patrol(900, 500 + s)}
+        )
+        for name, cmd in profiles.items():
+            for cond, v0 in VOLT.items():
+                supply = np.full(len(cmd), v0 + 0.3)
+                rpm, cur, v = simulate(
+                    cmd, supply, cond, s, zlib.crc32(f"{s}/{name}/{cond}".encode())
+                )
+                write(out / f"{cond}_{name}_u{s}.csv", cmd, rpm, cur, v, cond, f"u{s}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("what", choices=["paper", "rich", "healthy", "faulty"])
@@ -204,52 +240,18 @@ def main() -> None:
         sys.exit(2)
     a.out.mkdir(parents=True, exist_ok=True)
     if a.what in ("paper", "rich"):
-        units = range(a.first_seed, a.first_seed + (3 if a.what == "paper" else 6))
-        for s in units:
-            profiles = (
-                {"sine": sine(200)}
-                if a.what == "paper"
-                else {"sine": sine(300), "steps": steps(300, s), "patrol": patrol(900, 500 + s)}
-            )
-            for name, cmd in profiles.items():
-                for cond, v0 in VOLT.items():
-                    supply = np.full(len(cmd), v0 + 0.3)
-                    rpm, cur, v = simulate(
-                        cmd, supply, cond, s, zlib.crc32(f"{s}/{name}/{cond}".encode())
-                    )
-                    write(a.out / f"{cond}_{name}_u{s}.csv", cmd, rpm, cur, v, cond, f"u{s}")
-    else:
-        for k in range(a.runs):
-            s = a.first_seed + k
-            cmd = patrol(a.seconds, 900 + s)
-            supply = np.linspace(16.0, 12.5, len(cmd))
-            if a.what == "healthy":
-                rpm, cur, v = simulate(cmd, supply, "nominal_15v", s, 77 + s)
-                write(
-                    a.out / f"healthy_u{s}.csv",
-                    cmd,
-                    rpm,
-                    cur,
-                    v,
-                    "nominal_15v",
-                    f"u{s}",
-                    labels=True,
-                )
-            else:
-                fault = list(FAULTS)[k % 3]
-                # a constant 15 V supply: the faults of this world's training are at 15 V
-                rpm, cur, v = simulate(
-                    cmd,
-                    np.full(len(cmd), 15.3),
-                    "nominal_15v",
-                    s,
-                    77 + s,
-                    fault_at=120.0,
-                    fault=fault,
-                )
-                write(
-                    a.out / f"faulty_{fault}_u{s}.csv", cmd, rpm, cur, v, "", f"u{s}", labels=True
-                )
+        count = 3 if a.what == "paper" else 6
+        write_training(a.out, range(a.first_seed, a.first_seed + count), a.what == "paper")
+        return
+    for k in range(a.runs):
+        s = a.first_seed + k
+        if a.what == "healthy":
+            cmd, rpm, cur, v = patrol_unit(s, a.seconds, drift=True)
+            write(a.out / f"healthy_u{s}.csv", cmd, rpm, cur, v, "nominal_15v", f"u{s}", True)
+        else:
+            fault = list(FAULTS)[k % len(FAULTS)]
+            cmd, rpm, cur, v = patrol_unit(s, a.seconds, drift=False, fault=fault)
+            write(a.out / f"faulty_{fault}_u{s}.csv", cmd, rpm, cur, v, "", f"u{s}", True)
 
 
 if __name__ == "__main__":
