@@ -8,6 +8,9 @@ residual and decision code: healthy patrols (half at a constant 15.3 V, the trai
 of the faults, half with the supply drifting from 16 to 12.5 V) and faulty patrols that lose
 one or two blades or foul at ``--onset-s`` (15.3 V). A fault published before the onset of a
 faulty patrol is a false alarm on a healthy unit and is counted with the healthy patrols.
+Each healthy stretch's mean fault log-likelihood ratio over its informative windows is reported
+too: the classifier's ``unit_allowance`` (``--unit-allowance``) must exceed it for the unit to
+stay quiet (docs/diagnosis.md).
 
 Written to ``--out``: ``summary.md``, ``summary.json``, ``runs.json``; the training traces in
 ``train/`` and the models in ``models/`` unless ``--models`` names trained ones.
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -31,6 +35,7 @@ from patrol_study import DETECT_WITHIN_S, detection_metrics, healthy_metrics, po
 
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.diagnosis.model import ClassifierModel
+from thruster_fdd.core.diagnosis.stream import LLR_CLIP, UNIT_ALLOWANCE
 from thruster_fdd.core.labels import FAULT_CLASSES
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.traces.data import Trace
@@ -69,7 +74,10 @@ def patrol_run(job: dict[str, Any]) -> dict[str, Any]:
     trace = Trace(t=t, command=cmd, voltage=v, rpm=rpm, current=cur)
     models = Path(job["models"])
     decisions = trace_decisions(
-        trace, NominalModel.load(models / "nominal"), ClassifierModel.load(models / "classifier")
+        trace,
+        NominalModel.load(models / "nominal"),
+        ClassifierModel.load(models / "classifier"),
+        unit_allowance=job["unit_allowance"],
     )
     healthy_end = min(onset, job["seconds"]) if fault else job["seconds"]
     out: dict[str, Any] = {
@@ -92,6 +100,7 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "units_with_a_fault": sum(1 for r in runs if r["fault_episodes"]),
         "episodes_per_hour_upper95": poisson_upper(episodes, hours),
         "unknown_fraction": float(np.mean([r["unknown_fraction"] for r in runs])),
+        **_ratio_spread(runs),
     }
     faulty = {}
     for name in FAULT_CLASSES:
@@ -110,6 +119,19 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return {"healthy": healthy, "faulty": faulty}
 
 
+def _ratio_spread(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median and largest mean fault ratio (nats) of the healthy stretches, and whose."""
+    known = [r for r in runs if r["mean_fault_ratio"] is not None]
+    if not known:
+        return {"mean_fault_ratio_median": None, "mean_fault_ratio_largest": None}
+    top = max(known, key=lambda r: r["mean_fault_ratio"])
+    return {
+        "mean_fault_ratio_median": float(np.median([r["mean_fault_ratio"] for r in known])),
+        "mean_fault_ratio_largest": top["mean_fault_ratio"],
+        "mean_fault_ratio_largest_unit": top["seed"],
+    }
+
+
 def markdown(summary: dict[str, Any], model_id: str) -> str:
     """``summary.md``."""
     h = summary["healthy"]
@@ -122,6 +144,8 @@ def markdown(summary: dict[str, Any], model_id: str) -> str:
         f"| patrols and faulty patrols before the onset | {h['units']} | {h['hours']:.1f} | "
         f"{h['fault_seconds']:.0f} | {h['fault_episodes']} | {h['units_with_a_fault']} | "
         f"{h['episodes_per_hour_upper95']:.3f} | {100 * h['unknown_fraction']:.1f} % |",
+        "",
+        _ratio_line(summary),
         "",
         "| faulty patrols | runs | first fault right | within 60 s of covered work | median delay: "
         "covered work / wall, s | right class after (all / labelled) |",
@@ -140,6 +164,20 @@ def markdown(summary: dict[str, Any], model_id: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _ratio_line(summary: dict[str, Any]) -> str:
+    """What the healthy units' mean fault ratios say about the allowance."""
+    h = summary["healthy"]
+    if h["mean_fault_ratio_largest"] is None:
+        return "No healthy unit had an informative window."
+    return (
+        f"Mean fault log-likelihood ratio of a healthy unit over its informative windows: median "
+        f"{h['mean_fault_ratio_median']:.2f}, largest {h['mean_fault_ratio_largest']:.2f} nats "
+        f"(unit {h['mean_fault_ratio_largest_unit']}); `unit_allowance` "
+        f"{summary['unit_allowance']:g}. A unit whose mean stays under the allowance gathers no "
+        "lasting evidence."
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the study (module docstring)."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -153,20 +191,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--faulty-runs", type=int, default=36, help="faulty patrols (classes in turn)")
     p.add_argument("--faulty-s", type=float, default=1200.0, help="length of a faulty patrol, s")
     p.add_argument("--onset-s", type=float, default=120.0, help="fault onset, s")
+    p.add_argument(
+        "--unit-allowance",
+        type=float,
+        default=UNIT_ALLOWANCE,
+        help="the classifier's unit_allowance, nats per window length",
+    )
     p.add_argument("--jobs", type=int, default=2, help="worker processes")
     args = p.parse_args(argv)
     if not world.DATA.is_dir():
         print(f"t200_study: the T200 workbook sheets are not at {world.DATA}", file=sys.stderr)
         return 2
+    if not (math.isfinite(args.unit_allowance) and 0.0 <= args.unit_allowance <= LLR_CLIP):
+        print(f"t200_study: --unit-allowance must be in [0, {LLR_CLIP:.1f}]", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     models = args.models or train(args.out, args.train_unit)
     jobs = [
         {"seed": args.healthy_unit + i, "fault": None, "drift": i % 2 == 1,
-         "seconds": args.healthy_s, "onset_s": args.onset_s, "models": str(models)}
+         "seconds": args.healthy_s, "onset_s": args.onset_s, "models": str(models),
+         "unit_allowance": args.unit_allowance}
         for i in range(args.healthy_runs)
     ] + [
         {"seed": args.faulty_unit + k, "fault": list(world.FAULTS)[k % len(world.FAULTS)],
-         "drift": False, "seconds": args.faulty_s, "onset_s": args.onset_s, "models": str(models)}
+         "drift": False, "seconds": args.faulty_s, "onset_s": args.onset_s, "models": str(models),
+         "unit_allowance": args.unit_allowance}
         for k in range(args.faulty_runs)
     ]  # fmt: skip
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
@@ -174,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         for r in pool.map(patrol_run, jobs):
             runs.append(r)
             print(f"[t200] unit {r['seed']} {r['fault'] or 'healthy'} done", file=sys.stderr)
-    summary = summarize(runs)
+    summary = {**summarize(runs), "unit_allowance": args.unit_allowance}
     model_id = ClassifierModel.load(models / "classifier").model_id
     summary["classifier"] = model_id
     write_text(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")

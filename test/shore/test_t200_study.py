@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from thruster_fdd.core.artifact import default_models_dir
+from thruster_fdd.core.diagnosis.stream import UNIT_ALLOWANCE
 
 T200_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "t200"
 
@@ -32,3 +33,9 @@ def test_the_t200_study_counts_healthy_time_before_the_onset(load_script, tmp_pa
     assert [r["fault"] for r in runs[2:]] == ["broken_blade_1", "broken_blade_2", "biofouling"]
     assert all(r["fault_s"] <= r["healthy_s"] for r in runs)
     assert (tmp_path / "summary.md").read_text().startswith("Classifier `classifier-")
+    ratios = [r["mean_fault_ratio"] for r in runs if r["mean_fault_ratio"] is not None]
+    if ratios:
+        assert summary["healthy"]["mean_fault_ratio_largest"] == max(ratios)
+        assert summary["healthy"]["mean_fault_ratio_largest_unit"] in {r["seed"] for r in runs}
+    assert summary["unit_allowance"] == UNIT_ALLOWANCE
+    assert study.main([*args, "--unit-allowance", "-1"]) == 2

@@ -24,6 +24,7 @@ from thruster_fdd.core.diagnosis.stream import (
     LLR_CLIP,
     LOW_EXCITATION,
     OUTSIDE_TRAINING,
+    UNIT_ALLOWANCE,
     DiagnosisStream,
     fault_threshold,
 )
@@ -93,7 +94,7 @@ def test_a_steady_fault_is_published_once_its_evidence_reaches_the_threshold(
     p = bounded(_probs(fault, strength)[None])[0]
     faults = np.array([c in FAULT_CLASSES for c in CLASS_NAMES])
     llr = math.log(p[faults].sum() / p[~faults].sum())  # equal priors: 3 healthy, 3 faults
-    step = 0.1 / 2.0 * min(llr, LLR_CLIP)
+    step = 0.1 / 2.0 * (min(llr, LLR_CLIP) - UNIT_ALLOWANCE)
     first = next(i for i, d in enumerate(decisions) if d.label == fault)
     assert first == math.ceil(h / step - 1e-9) - 1
     assert all(d.label != fault for d in decisions[:first])
@@ -121,6 +122,43 @@ def test_windows_that_favour_health_never_publish_a_fault(rows: list) -> None:
     decisions = _run(probs * 10, [DRIVEN] * (500 + 19), DRIVEN_POINT)
     assert not any(d.label in FAULT_CLASSES for d in decisions)
     assert all(d.fault_evidence == 0.0 for d in decisions)
+
+
+def _ratio_probs(llr: float, fault: str) -> np.ndarray:
+    """Window probabilities whose fault log-likelihood ratio is ``llr``, all on ``fault``."""
+    p_fault = 1.0 / (1.0 + math.exp(-llr))
+    p = np.zeros(len(CLASS_NAMES))
+    p[CLASS_NAMES.index(fault)] = p_fault
+    p[[CLASS_NAMES.index(c) for c in CLASS_NAMES if c not in FAULT_CLASSES]] = (1 - p_fault) / 3
+    return p
+
+
+@given(
+    share=st.floats(0.2, 0.95),
+    fault=st.sampled_from(FAULT_CLASSES),
+    allowance=st.floats(1.0, 4.0),
+)
+@settings(max_examples=10, deadline=None)
+def test_a_unit_offset_within_the_allowance_never_adds_up_to_a_fault(
+    share: float, fault: str, allowance: float
+) -> None:
+    # Every window of a healthy unit whose spread looks a little like a fault gives the same
+    # positive ratio: below the allowance it publishes no fault and gathers no evidence over
+    # windows worth three thresholds without the allowance, where the same windows do.
+    llr = share * allowance
+    rows = [_ratio_probs(llr, fault)] * math.ceil(3 * fault_threshold(1e-3, 2.0) / (0.05 * llr))
+    samples = [DRIVEN] * (len(rows) + 19)
+    within = _run(rows, samples, DRIVEN_POINT, unit_allowance=allowance)
+    assert not any(d.label in FAULT_CLASSES or d.fault_evidence > 0.0 for d in within)
+    without = _run(rows, samples, DRIVEN_POINT, unit_allowance=0.0)
+    assert any(d.label == fault for d in without)
+
+
+def test_the_allowance_is_checked() -> None:
+    model = FixedProbabilities(iter([]), DRIVEN_POINT)
+    for bad in (-0.1, math.nan, LLR_CLIP + 1.0):
+        with pytest.raises(ValueError, match="unit_allowance"):
+            DiagnosisStream(model, unit_allowance=bad)  # type: ignore[arg-type]
 
 
 def test_uncovered_and_idle_windows_are_unknown_and_change_no_evidence() -> None:

@@ -6,7 +6,8 @@ hop, plus a ``/diagnostics`` status: OK for the nominal classes at 15 V, WARN fo
 voltage and for an unknown diagnosis (with its reason: outside the training region, low
 excitation, ...), ERROR for faults, STALE when residuals stop (then the diagnosis becomes UNKNOWN
 rather than repeating an old label). A fault is published only once the sequential test's
-evidence reaches the threshold set for ``false_alarms_per_hour``. Residuals made by another
+evidence, counted beyond the ``unit_allowance`` a healthy unit may show, reaches the threshold
+set for ``false_alarms_per_hour``. Residuals made by another
 nominal model than the one the classifier was trained with are refused (UNKNOWN, ERROR with
 both model ids).
 
@@ -84,6 +85,12 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
         "false-alarm rate the fault evidence threshold is set for, per hour of covered operation "
         "(lower: fewer false alarms, later detection)",
     ),
+    (
+        "unit_allowance",
+        2.0,
+        "evidence allowance against healthy thrusters: the mean fault log-likelihood ratio a "
+        "healthy unit may show, nats (per window length)",
+    ),
     ("stale_after_s", 3.0, "no residual for this long -> STALE and UNKNOWN, s"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),
 )
@@ -98,6 +105,7 @@ def stream_options(value: Callable[[str], Any]) -> dict[str, Any]:
         "hysteresis": int(value("hysteresis")),
         "unknown_threshold": threshold if threshold >= 0 else None,
         "false_alarms_per_hour": float(value("false_alarms_per_hour")),
+        "unit_allowance": float(value("unit_allowance")),
     }
 
 

@@ -61,6 +61,7 @@ SHARED_LIMITS: dict[str, Limit] = {
     "hysteresis": (1, 100),
     "unknown_threshold": (-1.0, 1.0e6),
     "false_alarms_per_hour": (1.0e-9, 100.0),
+    "unit_allowance": (0.0, 13.8),
 }
 """Limits of parameters that mean the same in every node that has them (used where a node's
 module gives none of its own)."""

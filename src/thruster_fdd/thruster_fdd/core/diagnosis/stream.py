@@ -7,7 +7,7 @@ Pipeline (the same online in the classifier node and offline in ``diagnosis.offl
       --ClassifierModel--> calibrated class probabilities + distance to the nearest class
       --DiagnosisStream--> coverage and excitation gate -> evidence (healthy classes: weighted
         mean of log-probabilities and hysteresis; faults: a sequential test on log-likelihood
-        ratios) -> Decision
+        ratios beyond what a healthy unit shows) -> Decision
 """
 
 from __future__ import annotations
@@ -35,6 +35,14 @@ while the thruster turns (tuned on validation units 400-405, docs/diagnosis.md).
 
 FALSE_ALARMS_PER_HOUR = 1e-3
 """Default false-alarm rate the fault threshold is set for, per hour of covered operation."""
+
+UNIT_ALLOWANCE = 2.0
+"""Allowance of the test against healthy thrusters, nats per window length: only the part of a
+window's log-likelihood ratio above it counts as evidence. The windows of one thruster share its
+manufacturing offsets, so they are not independent given its condition: a healthy unit whose
+gains sit where a fault puts them has a positive mean ratio at every window, and without an
+allowance its evidence would grow without bound. The allowance is the mean ratio a healthy unit
+may show (docs/diagnosis.md)."""
 
 LLR_CLIP = math.log((1.0 - P_MIN) / P_MIN)
 """Largest log-likelihood ratio one window can contribute (the probabilities' own bound)."""
@@ -79,6 +87,15 @@ def fault_threshold(false_alarms_per_hour: float, window_s: float) -> float:
             f"false_alarms_per_hour must be in (0, {limit:g}), got {false_alarms_per_hour}"
         )
     return math.log(limit / false_alarms_per_hour)
+
+
+def fault_log_ratio(fault_p: float, healthy_classes: int, fault_classes: int) -> float:
+    """Log-likelihood ratio (nats) of "some fault" against "healthy" for a window whose fault
+    classes together have probability ``fault_p`` (0..1, exclusive), with equal class priors
+    over ``healthy_classes`` and ``fault_classes``; clipped to ``LLR_CLIP``. This is what the
+    sequential test adds, before the allowance."""
+    llr = math.log(fault_p) - math.log(1.0 - fault_p) + math.log(healthy_classes / fault_classes)
+    return min(max(llr, -LLR_CLIP), LLR_CLIP)
 
 
 EXCITATION_RANGE: tuple[float, float] = (0.3, 0.6)
@@ -258,6 +275,8 @@ class DiagnosisStream:
         (``EXCITATION_RANGE``).
     false_alarms_per_hour : float
         False-alarm rate the fault threshold is set for (``fault_threshold``), per hour.
+    unit_allowance : float
+        Allowance of the sequential test, nats per window length (``UNIT_ALLOWANCE``).
 
     Decision layer. A window is *informative* when the rotor turned (excitation weight
     ``w > 0``, from its share of turning samples), its operating point is covered by the
@@ -265,14 +284,14 @@ class DiagnosisStream:
     other window is published as ``"unknown"`` with the reason and changes no evidence.
     Informative windows feed two kinds of evidence:
 
-    - faults, by a sequential test: the log-likelihood ratio of the fault classes together
-      against the healthy ones, ``log(p_F / p_H) + log(pi_H / pi_F)`` (the calibrated
-      probabilities with the training's equal class priors), clipped to ``LLR_CLIP``, weighted
-      by ``w * hop / window_s``, enters a CUSUM ``S``. A fault is published once ``S`` reaches
-      ``fault_threshold(false_alarms_per_hour, window_s)``, as the fault class with the most
-      accumulated evidence (the weighted mean of log-probabilities below); it stands until a
-      CUSUM of the opposite ratio reaches the same threshold (then the fault evidence
-      restarts);
+    - faults, by a sequential test: the log-likelihood ratio ``llr`` of the fault classes
+      together against the healthy ones, ``log(p_F / p_H) + log(pi_H / pi_F)`` (the calibrated
+      probabilities with the training's equal class priors), clipped to ``LLR_CLIP``, less
+      ``unit_allowance``, weighted by ``w * hop / window_s``, enters a CUSUM ``S``. A fault is
+      published once ``S`` reaches ``fault_threshold(false_alarms_per_hour, window_s)``, as the
+      fault class with the most accumulated evidence (the weighted mean of log-probabilities
+      below); it stands until a CUSUM of the opposite step reaches the same threshold (then the
+      fault evidence restarts);
     - healthy classes: each window's log-probabilities enter an exponentially weighted mean
       (forgetting only while the thruster turns); the label is the healthy class with the
       largest softmax of that mean, ``"unknown"`` (``evidence_pending``) when the healthy
@@ -293,6 +312,7 @@ class DiagnosisStream:
         evidence_tau_s: float = EVIDENCE_TAU_S,
         excitation_range: tuple[float, float] = EXCITATION_RANGE,
         false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
+        unit_allowance: float = UNIT_ALLOWANCE,
     ) -> None:
         if not (math.isfinite(hop_s) and hop_s > 0):
             raise ValueError(f"hop_s must be > 0, got {hop_s}")
@@ -305,6 +325,8 @@ class DiagnosisStream:
             raise ValueError(f"hysteresis must be >= 1, got {hysteresis}")
         if unknown_threshold is not None and not 0.0 <= unknown_threshold <= 1.0:
             raise ValueError(f"unknown_threshold must be in [0, 1], got {unknown_threshold}")
+        if not (math.isfinite(unit_allowance) and 0.0 <= unit_allowance <= LLR_CLIP):
+            raise ValueError(f"unit_allowance must be in [0, {LLR_CLIP:.1f}], got {unit_allowance}")
         self.model = model
         self.hop_s = hop_s
         self.hysteresis = hysteresis
@@ -314,6 +336,7 @@ class DiagnosisStream:
         self.evidence_tau_s = float(evidence_tau_s)
         self.excitation_range = (lo, hi)
         self.threshold = fault_threshold(false_alarms_per_hour, model.window_s)
+        self.unit_allowance = float(unit_allowance)
         hop_samples = max(1, round(hop_s / model.sample_time_s))
         self._hop_time_s = hop_samples * model.sample_time_s
         self._gamma = min(self._hop_time_s / model.window_s, 1.0)
@@ -323,8 +346,7 @@ class DiagnosisStream:
         self._faults = np.array([c in FAULT_CLASSES for c in names])
         if not self._faults.any() or self._faults.all():
             raise ValueError("the classifier needs healthy and fault classes")
-        # Equal class priors (training is class-balanced): the prior odds of health to a fault.
-        self._prior_log_ratio = math.log(int((~self._faults).sum()) / int(self._faults.sum()))
+        self._class_counts = (int((~self._faults).sum()), int(self._faults.sum()))
         self.reset()
 
     def reset(self) -> None:
@@ -423,9 +445,8 @@ class DiagnosisStream:
     def _add_evidence(self, p: np.ndarray, w: float) -> str:
         """Add one informative window (probabilities (C,), weight 0..1); set the label; return
         the reason it is unknown, or ``""``."""
-        fault_p = float(p[self._faults].sum())
-        llr = math.log(fault_p) - math.log(1.0 - fault_p) + self._prior_log_ratio
-        step = w * self._gamma * min(max(llr, -LLR_CLIP), LLR_CLIP)
+        llr = fault_log_ratio(float(p[self._faults].sum()), *self._class_counts)
+        step = w * self._gamma * (llr - self.unit_allowance)
         self._cusum = min(max(self._cusum + step, 0.0), 2.0 * self.threshold)
         keep = math.exp(-w * self._hop_time_s / self.evidence_tau_s) if self.evidence_tau_s else 0
         self._log_p = keep * self._log_p + w * np.log(p)

@@ -13,6 +13,7 @@ from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.diagnosis.stream import (
     EVIDENCE_TAU_S,
     FALSE_ALARMS_PER_HOUR,
+    UNIT_ALLOWANCE,
     Decision,
     DiagnosisStream,
 )
@@ -47,6 +48,7 @@ def trace_decisions(
     unknown_threshold: float | None = None,
     evidence_tau_s: float = EVIDENCE_TAU_S,
     false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
+    unit_allowance: float = UNIT_ALLOWANCE,
 ) -> list[Decision]:
     """Run a trace sample by sample through ResidualStream and DiagnosisStream.
 
@@ -62,6 +64,7 @@ def trace_decisions(
         unknown_threshold=unknown_threshold,
         evidence_tau_s=evidence_tau_s,
         false_alarms_per_hour=false_alarms_per_hour,
+        unit_allowance=unit_allowance,
     )
     decisions = []
     columns = (trace.t, trace.command, trace.voltage, trace.rpm, trace.current)
