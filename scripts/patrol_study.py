@@ -33,18 +33,12 @@ import numpy as np
 from thruster_fdd.core.artifact import default_models_dir
 from thruster_fdd.core.atomic import write_text
 from thruster_fdd.core.diagnosis.model import ClassifierModel
-from thruster_fdd.core.diagnosis.stream import (
-    LOW_EXCITATION,
-    OUTSIDE_TRAINING,
-    UNLIKE_CLASSES,
-    Decision,
-    fault_log_ratio,
-)
+from thruster_fdd.core.diagnosis.stream import LOW_EXCITATION, OUTSIDE_TRAINING, Decision
 from thruster_fdd.core.labels import CLASS_NAMES, FAULT_CLASSES, UNKNOWN
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.traces.data import Trace
 from thruster_fdd_shore.core.diagnosis.metrics import expected_calibration_error, reliability
-from thruster_fdd_shore.core.diagnosis.offline import trace_decisions
+from thruster_fdd_shore.core.diagnosis.offline import mean_fault_ratio, trace_decisions
 from thruster_fdd_shore.core.sim.config import SimConfig, load_config
 from thruster_fdd_shore.core.sim.physics import ThrusterSimulator
 from thruster_fdd_shore.core.sim.scenario import run_scenario
@@ -117,15 +111,6 @@ def healthy_metrics(decisions: list[Decision]) -> dict[str, Any]:
     and its mean fault log-likelihood ratio over informative windows (``mean_fault_ratio``,
     nats; None without one): the allowance a healthy unit needs (docs/diagnosis.md)."""
     labels = [d.label for d in decisions]
-    ratios = [
-        fault_log_ratio(
-            sum(d.probabilities[c] for c in FAULT_CLASSES),
-            len(d.probabilities) - len(FAULT_CLASSES),
-            len(FAULT_CLASSES),
-        )
-        for d in decisions
-        if d.reason not in (LOW_EXCITATION, OUTSIDE_TRAINING, UNLIKE_CLASSES)
-    ]
     fault = [label in FAULT_CLASSES for label in labels]
     episodes = sum(1 for i, f in enumerate(fault) if f and (i == 0 or not fault[i - 1]))
     reasons: dict[str, int] = {}
@@ -140,7 +125,7 @@ def healthy_metrics(decisions: list[Decision]) -> dict[str, Any]:
         "unknown_fraction": labels.count(UNKNOWN) / max(len(labels), 1),
         "reasons": reasons,
         "max_fault_evidence": max((d.fault_evidence for d in decisions), default=0.0),
-        "mean_fault_ratio": float(np.mean(ratios)) if ratios else None,
+        "mean_fault_ratio": mean_fault_ratio(decisions),
     }
 
 

@@ -413,8 +413,10 @@ def test_cli_train_and_diagnose_json_has_design_keys(models: Path, tmp_path: Pat
         "first_fault",
         "unknown_reasons",
         "fault_threshold",
+        "mean_fault_ratio",
         "windows",
     }
+    assert result["mean_fault_ratio"] is None or math.isfinite(result["mean_fault_ratio"])
     assert set(result["overall"]) == {"label", "confidence"}
     for e in result["events"]:
         assert set(e) == {"t", "label", "confidence"}

@@ -13,9 +13,13 @@ from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.diagnosis.stream import (
     EVIDENCE_TAU_S,
     FALSE_ALARMS_PER_HOUR,
+    LOW_EXCITATION,
+    OUTSIDE_TRAINING,
     UNIT_ALLOWANCE,
+    UNLIKE_CLASSES,
     Decision,
     DiagnosisStream,
+    fault_log_ratio,
 )
 from thruster_fdd.core.errors import ModelMismatchError
 from thruster_fdd.core.labels import FAULT_CLASSES, UNKNOWN
@@ -126,10 +130,27 @@ def overall_label(decisions: list[Decision]) -> dict[str, Any]:
     return {"label": label, "confidence": confidence}
 
 
+def mean_fault_ratio(decisions: list[Decision]) -> float | None:
+    """Mean fault log-likelihood ratio (nats, ``stream.fault_log_ratio``) of the informative
+    windows (turning, covered, like some class); None without one. On a healthy thruster this is
+    the lean its own spread gives the fault evidence: the classifier's ``unit_allowance`` must
+    exceed it for the unit to stay quiet."""
+    ratios = [
+        fault_log_ratio(
+            sum(d.probabilities[c] for c in FAULT_CLASSES),
+            len(d.probabilities) - len(FAULT_CLASSES),
+            len(FAULT_CLASSES),
+        )
+        for d in decisions
+        if d.reason not in (LOW_EXCITATION, OUTSIDE_TRAINING, UNLIKE_CLASSES)
+    ]
+    return float(np.mean(ratios)) if ratios else None
+
+
 def summarize_decisions(decisions: list[Decision]) -> dict:
     """The ``diagnose`` JSON (docs/contracts.md) from decisions: ``overall``
-    (``overall_label``), ``events`` (``label_events``), ``first_fault`` (``first_fault``) and
-    ``windows``."""
+    (``overall_label``), ``events`` (``label_events``), ``first_fault`` (``first_fault``),
+    ``mean_fault_ratio`` (``mean_fault_ratio``) and ``windows``."""
     windows = [
         {
             "t_start": d.t_start_s,
@@ -155,6 +176,7 @@ def summarize_decisions(decisions: list[Decision]) -> dict:
         "first_fault": first_fault(decisions),
         "unknown_reasons": reasons,
         "fault_threshold": decisions[0].fault_threshold if decisions else None,
+        "mean_fault_ratio": mean_fault_ratio(decisions),
         "windows": windows,
     }
 
