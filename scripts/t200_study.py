@@ -207,15 +207,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     models = args.models or train(args.out, args.train_unit)
+    common = {"onset_s": args.onset_s, "models": str(models), "unit_allowance": args.unit_allowance}
     jobs = [
-        {"seed": args.healthy_unit + i, "fault": None, "drift": i % 2 == 1,
-         "seconds": args.healthy_s, "onset_s": args.onset_s, "models": str(models),
-         "unit_allowance": args.unit_allowance}
+        {**common, "seed": args.healthy_unit + i, "fault": None, "drift": i % 2 == 1,
+         "seconds": args.healthy_s}
         for i in range(args.healthy_runs)
     ] + [
-        {"seed": args.faulty_unit + k, "fault": list(world.FAULTS)[k % len(world.FAULTS)],
-         "drift": False, "seconds": args.faulty_s, "onset_s": args.onset_s, "models": str(models),
-         "unit_allowance": args.unit_allowance}
+        {**common, "seed": args.faulty_unit + k, "fault": list(world.FAULTS)[k % len(world.FAULTS)],
+         "drift": False, "seconds": args.faulty_s}
         for k in range(args.faulty_runs)
     ]  # fmt: skip
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
@@ -228,8 +227,9 @@ def main(argv: list[str] | None = None) -> int:
     summary["classifier"] = model_id
     write_text(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     write_text(args.out / "runs.json", json.dumps(runs, indent=1))
-    write_text(args.out / "summary.md", markdown(summary, model_id))
-    print(markdown(summary, model_id))
+    text = markdown(summary, model_id)
+    write_text(args.out / "summary.md", text)
+    print(text)
     return 0
 
 
