@@ -38,7 +38,7 @@ from thruster_fdd.core.labels import CLASS_NAMES, FAULT_CLASSES, UNKNOWN
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.traces.data import Trace
 from thruster_fdd_shore.core.diagnosis.metrics import expected_calibration_error, reliability
-from thruster_fdd_shore.core.diagnosis.offline import mean_fault_ratio, trace_decisions
+from thruster_fdd_shore.core.diagnosis.offline import quiet_allowance, trace_decisions
 from thruster_fdd_shore.core.sim.config import SimConfig, load_config
 from thruster_fdd_shore.core.sim.physics import ThrusterSimulator
 from thruster_fdd_shore.core.sim.scenario import run_scenario
@@ -108,8 +108,8 @@ def healthy_run(job: dict[str, Any]) -> dict[str, Any]:
 
 def healthy_metrics(decisions: list[Decision]) -> dict[str, Any]:
     """Fault time (s) and episodes, unknown share and reasons of decisions on a healthy unit,
-    and its mean fault log-likelihood ratio over informative windows (``mean_fault_ratio``,
-    nats; None without one): the allowance a healthy unit needs (docs/diagnosis.md)."""
+    and the smallest ``unit_allowance`` that keeps it free of faults (``quiet_allowance``,
+    nats; None without an informative window; docs/diagnosis.md)."""
     labels = [d.label for d in decisions]
     fault = [label in FAULT_CLASSES for label in labels]
     episodes = sum(1 for i, f in enumerate(fault) if f and (i == 0 or not fault[i - 1]))
@@ -125,7 +125,7 @@ def healthy_metrics(decisions: list[Decision]) -> dict[str, Any]:
         "unknown_fraction": labels.count(UNKNOWN) / max(len(labels), 1),
         "reasons": reasons,
         "max_fault_evidence": max((d.fault_evidence for d in decisions), default=0.0),
-        "mean_fault_ratio": mean_fault_ratio(decisions),
+        "quiet_allowance": quiet_allowance(decisions),
     }
 
 

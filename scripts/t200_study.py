@@ -8,9 +8,9 @@ residual and decision code: healthy patrols (half at a constant 15.3 V, the trai
 of the faults, half with the supply drifting from 16 to 12.5 V) and faulty patrols that lose
 one or two blades or foul at ``--onset-s`` (15.3 V). A fault published before the onset of a
 faulty patrol is a false alarm on a healthy unit and is counted with the healthy patrols.
-Each healthy stretch's mean fault log-likelihood ratio over its informative windows is reported
-too: the classifier's ``unit_allowance`` (``--unit-allowance``) must exceed it for the unit to
-stay quiet (docs/diagnosis.md).
+Each healthy stretch's quiet allowance is reported too: the smallest ``unit_allowance`` with
+which it publishes no fault; the largest over the units is what the classifier needs
+(``--unit-allowance`` reruns the patrols with another; docs/diagnosis.md).
 
 Written to ``--out``: ``summary.md``, ``summary.json``, ``runs.json``; the training traces in
 ``train/`` and the models in ``models/`` unless ``--models`` names trained ones.
@@ -100,7 +100,7 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "units_with_a_fault": sum(1 for r in runs if r["fault_episodes"]),
         "episodes_per_hour_upper95": poisson_upper(episodes, hours),
         "unknown_fraction": float(np.mean([r["unknown_fraction"] for r in runs])),
-        **_ratio_spread(runs),
+        **_quiet_spread(runs),
     }
     faulty = {}
     for name in FAULT_CLASSES:
@@ -119,16 +119,16 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return {"healthy": healthy, "faulty": faulty}
 
 
-def _ratio_spread(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    """Median and largest mean fault ratio (nats) of the healthy stretches, and whose."""
-    known = [r for r in runs if r["mean_fault_ratio"] is not None]
+def _quiet_spread(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median and largest quiet allowance (nats) of the healthy stretches, and whose."""
+    known = [r for r in runs if r["quiet_allowance"] is not None]
     if not known:
-        return {"mean_fault_ratio_median": None, "mean_fault_ratio_largest": None}
-    top = max(known, key=lambda r: r["mean_fault_ratio"])
+        return {"quiet_allowance_median": None, "quiet_allowance_largest": None}
+    top = max(known, key=lambda r: r["quiet_allowance"])
     return {
-        "mean_fault_ratio_median": float(np.median([r["mean_fault_ratio"] for r in known])),
-        "mean_fault_ratio_largest": top["mean_fault_ratio"],
-        "mean_fault_ratio_largest_unit": top["seed"],
+        "quiet_allowance_median": float(np.median([r["quiet_allowance"] for r in known])),
+        "quiet_allowance_largest": top["quiet_allowance"],
+        "quiet_allowance_largest_unit": top["seed"],
     }
 
 
@@ -145,7 +145,7 @@ def markdown(summary: dict[str, Any], model_id: str) -> str:
         f"{h['fault_seconds']:.0f} | {h['fault_episodes']} | {h['units_with_a_fault']} | "
         f"{h['episodes_per_hour_upper95']:.3f} | {100 * h['unknown_fraction']:.1f} % |",
         "",
-        _ratio_line(summary),
+        _quiet_line(summary),
         "",
         "| faulty patrols | runs | first fault right | within 60 s of covered work | median delay: "
         "covered work / wall, s | right class after (all / labelled) |",
@@ -164,17 +164,16 @@ def markdown(summary: dict[str, Any], model_id: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _ratio_line(summary: dict[str, Any]) -> str:
-    """What the healthy units' mean fault ratios say about the allowance."""
+def _quiet_line(summary: dict[str, Any]) -> str:
+    """What the healthy units' quiet allowances say about the allowance."""
     h = summary["healthy"]
-    if h["mean_fault_ratio_largest"] is None:
+    if h["quiet_allowance_largest"] is None:
         return "No healthy unit had an informative window."
     return (
-        f"Mean fault log-likelihood ratio of a healthy unit over its informative windows: median "
-        f"{h['mean_fault_ratio_median']:.2f}, largest {h['mean_fault_ratio_largest']:.2f} nats "
-        f"(unit {h['mean_fault_ratio_largest_unit']}); `unit_allowance` "
-        f"{summary['unit_allowance']:g}. A unit whose mean stays under the allowance gathers no "
-        "lasting evidence."
+        f"Smallest `unit_allowance` that keeps a healthy unit free of faults: median "
+        f"{h['quiet_allowance_median']:.2f}, largest {h['quiet_allowance_largest']:.2f} nats "
+        f"(unit {h['quiet_allowance_largest_unit']}); this run used "
+        f"{summary['unit_allowance']:g}."
     )
 
 

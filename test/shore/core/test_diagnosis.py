@@ -10,11 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from thruster_fdd.core.diagnosis.coverage import OPERATING_POINT
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, window_features
 from thruster_fdd.core.diagnosis.model import ClassifierModel, softmax
-from thruster_fdd.core.diagnosis.stream import Decision, DiagnosisStream
+from thruster_fdd.core.diagnosis.stream import LLR_CLIP, Decision, DiagnosisStream
 from thruster_fdd.core.labels import CLASS_NAMES, UNKNOWN
 from thruster_fdd.core.nominal.residuals import ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
@@ -22,10 +24,12 @@ from thruster_fdd_shore import cli
 from thruster_fdd_shore.core.diagnosis.evaluation import onset_latency
 from thruster_fdd_shore.core.diagnosis.metrics import confusion
 from thruster_fdd_shore.core.diagnosis.offline import (
+    QUIET_TOLERANCE,
     diagnose_trace,
     first_fault,
     label_events,
     overall_label,
+    quiet_allowance,
     trace_decisions,
 )
 from thruster_fdd_shore.core.diagnosis.table3 import Table3Config, run_table3
@@ -341,6 +345,54 @@ def _published(*labels: tuple[float, str, str]) -> list[Decision]:
     return [Decision(t, lab, raw, {}, 0.9, 20.0, t - 20.0, 0.0) for t, lab, raw in labels]
 
 
+@given(
+    steps=st.lists(
+        st.tuples(st.sampled_from([0.0, 0.01, 0.05]), st.floats(-LLR_CLIP, LLR_CLIP)),
+        min_size=1,
+        max_size=40,
+    ),
+    threshold=st.floats(0.5, 20.0),
+)
+@settings(max_examples=50, deadline=None)
+def test_the_quiet_allowance_is_the_largest_allowance_some_run_of_windows_beats(
+    steps: list[tuple[float, float]], threshold: float
+) -> None:
+    # A CUSUM with allowance k reaches h when some run of windows has sum(g (r - k)) >= h, so
+    # the smallest quiet allowance is the largest (sum(g r) - h) / sum(g) over all runs.
+    decisions = [
+        Decision(float(i), "unknown", "unknown", {}, 0.5, 20.0, i - 20.0, 0.0,
+                 fault_threshold=threshold, fault_ratio=r, evidence_weight=g)
+        for i, (g, r) in enumerate(steps)
+    ]  # fmt: skip
+    runs = [
+        (sum(g * r for g, r in steps[i:j]) - threshold) / sum(g for g, _ in steps[i:j])
+        for i in range(len(steps))
+        for j in range(i + 1, len(steps) + 1)
+        if sum(g for g, _ in steps[i:j]) > 0.0
+    ]
+    quiet = quiet_allowance(decisions)
+    if not runs:
+        assert quiet is None
+        return
+    assert max(runs) - 1e-9 <= quiet <= max(runs) + QUIET_TOLERANCE + 1e-9
+
+
+def test_the_quiet_allowance_is_where_a_faulty_trace_stops_publishing() -> None:
+    nominal = NominalModel.load(NOMINAL_DIR)
+    classifier = ClassifierModel.load(NOMINAL_DIR.parent / "classifier")
+    trace = run_scenario("t100", "broken_blade_2", signal="multilevel", duration_s=90.0, seed=41)
+
+    def decide(allowance: float) -> list[Decision]:
+        return trace_decisions(trace, nominal, classifier, unit_allowance=allowance)
+
+    quiet = quiet_allowance(decide(0.0))
+    assert quiet is not None
+    assert 2 * QUIET_TOLERANCE < quiet < LLR_CLIP
+    assert quiet_allowance(decide(quiet)) == quiet, "it does not depend on the allowance used"
+    assert first_fault(decide(quiet)) is None
+    assert first_fault(decide(quiet - 2 * QUIET_TOLERANCE))["label"] == "broken_blade_2"
+
+
 def test_events_first_fault_and_an_overall_a_fault_wins() -> None:
     seq = _published(
         *[(float(t), "unknown", "unknown") for t in (20, 21)],
@@ -413,10 +465,10 @@ def test_cli_train_and_diagnose_json_has_design_keys(models: Path, tmp_path: Pat
         "first_fault",
         "unknown_reasons",
         "fault_threshold",
-        "mean_fault_ratio",
+        "quiet_allowance",
         "windows",
     }
-    assert result["mean_fault_ratio"] is None or math.isfinite(result["mean_fault_ratio"])
+    assert result["quiet_allowance"] is None or math.isfinite(result["quiet_allowance"])
     assert set(result["overall"]) == {"label", "confidence"}
     for e in result["events"]:
         assert set(e) == {"t", "label", "confidence"}

@@ -168,11 +168,14 @@ def test_uncovered_and_idle_windows_are_unknown_and_change_no_evidence() -> None
     outside = _run(rows, [DRIVEN] * (n + 19), elsewhere)
     assert all(d.label == UNKNOWN and d.reason == OUTSIDE_TRAINING for d in outside)
     assert all(d.fault_evidence == 0.0 and not d.covered for d in outside)
+    assert all(d.evidence_weight == 0.0 for d in outside)
     idle = _run(rows, [DRIVEN] * (n + 19) + [IDLE] * 60, DRIVEN_POINT)
     quiet = [d for d in idle[n:] if d.reason == LOW_EXCITATION]
     assert quiet
     assert all(d.label == UNKNOWN for d in quiet)
     assert len({d.fault_evidence for d in quiet}) == 1  # frozen while the rotor stands
+    assert all(d.evidence_weight == 0.0 for d in quiet)
+    assert all(d.evidence_weight == pytest.approx(0.1 / 2.0) for d in idle[:n])
 
 
 def test_published_probabilities_are_bounded() -> None:

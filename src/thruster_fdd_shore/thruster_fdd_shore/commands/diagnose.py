@@ -176,10 +176,10 @@ def run(args: argparse.Namespace) -> int:
             f"  first fault: {fault['label']} published at {fault['t'] - start:.1f} s "
             f"(began about {fault['onset_t'] - start:.1f} s)"
         )
-    if result["mean_fault_ratio"] is not None:
+    if result["quiet_allowance"] is not None:
         print(
-            f"  mean fault ratio of the informative windows: {result['mean_fault_ratio']:.2f} nats "
-            "(on a healthy thruster, what the classifier's unit_allowance must exceed)"
+            f"  quiet allowance: {result['quiet_allowance']:.2f} nats (a unit_allowance above it "
+            "publishes no fault on this trace)"
         )
     if args.expect is None:
         return EXIT_OK

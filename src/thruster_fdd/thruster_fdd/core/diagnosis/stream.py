@@ -234,6 +234,12 @@ class Decision:
         0.
     fault_threshold : float
         Evidence at which a fault is published, nats.
+    fault_ratio : float
+        This window's log-likelihood ratio of some fault against healthy, nats
+        (``fault_log_ratio``, before the allowance).
+    evidence_weight : float
+        The share of one window length the window counts for in the sequential test (0..1:
+        its excitation weight times hop / window); 0 for a window that gives no evidence.
     """
 
     t_s: float
@@ -250,6 +256,8 @@ class Decision:
     fault_evidence: float = 0.0
     fault_candidate: str = ""
     fault_threshold: float = math.inf
+    fault_ratio: float = 0.0
+    evidence_weight: float = 0.0
 
 
 class DiagnosisStream:
@@ -414,6 +422,8 @@ class DiagnosisStream:
         lo, hi = self.excitation_range
         active = float(features[self._active_index])
         w = min(max((active - lo) / (hi - lo), 0.0), 1.0) if math.isfinite(active) else 0.0
+        llr = fault_log_ratio(float(p[self._faults].sum()), *self._class_counts)
+        weight = 0.0
         if w <= 0.0:
             reason = LOW_EXCITATION
         elif not covered:
@@ -421,7 +431,8 @@ class DiagnosisStream:
         elif unlike:
             reason = UNLIKE_CLASSES
         else:
-            reason = self._add_evidence(p, w)
+            weight = w * self._gamma
+            reason = self._add_evidence(p, llr, w)
         label = self._label if reason == "" else UNKNOWN
         confidence = self._probability_of(label) if label != UNKNOWN else float(p[best])
         evidence = self._cusum
@@ -440,12 +451,13 @@ class DiagnosisStream:
             fault_evidence=evidence,
             fault_candidate=self._fault_candidate() if evidence > 0.0 else "",
             fault_threshold=self.threshold,
+            fault_ratio=llr,
+            evidence_weight=weight,
         )
 
-    def _add_evidence(self, p: np.ndarray, w: float) -> str:
-        """Add one informative window (probabilities (C,), weight 0..1); set the label; return
-        the reason it is unknown, or ``""``."""
-        llr = fault_log_ratio(float(p[self._faults].sum()), *self._class_counts)
+    def _add_evidence(self, p: np.ndarray, llr: float, w: float) -> str:
+        """Add one informative window (probabilities (C,), its fault log-likelihood ratio,
+        weight 0..1); set the label; return the reason it is unknown, or ``""``."""
         step = w * self._gamma * (llr - self.unit_allowance)
         self._cusum = min(max(self._cusum + step, 0.0), 2.0 * self.threshold)
         keep = math.exp(-w * self._hop_time_s / self.evidence_tau_s) if self.evidence_tau_s else 0

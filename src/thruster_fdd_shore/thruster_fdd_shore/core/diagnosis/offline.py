@@ -13,13 +13,9 @@ from thruster_fdd.core.diagnosis.model import ClassifierModel
 from thruster_fdd.core.diagnosis.stream import (
     EVIDENCE_TAU_S,
     FALSE_ALARMS_PER_HOUR,
-    LOW_EXCITATION,
-    OUTSIDE_TRAINING,
     UNIT_ALLOWANCE,
-    UNLIKE_CLASSES,
     Decision,
     DiagnosisStream,
-    fault_log_ratio,
 )
 from thruster_fdd.core.errors import ModelMismatchError
 from thruster_fdd.core.labels import FAULT_CLASSES, UNKNOWN
@@ -130,27 +126,47 @@ def overall_label(decisions: list[Decision]) -> dict[str, Any]:
     return {"label": label, "confidence": confidence}
 
 
-def mean_fault_ratio(decisions: list[Decision]) -> float | None:
-    """Mean fault log-likelihood ratio (nats, ``stream.fault_log_ratio``) of the informative
-    windows (turning, covered, like some class); None without one. On a healthy thruster this is
-    the lean its own spread gives the fault evidence: the classifier's ``unit_allowance`` must
-    exceed it for the unit to stay quiet."""
-    ratios = [
-        fault_log_ratio(
-            sum(d.probabilities[c] for c in FAULT_CLASSES),
-            len(d.probabilities) - len(FAULT_CLASSES),
-            len(FAULT_CLASSES),
-        )
-        for d in decisions
-        if d.reason not in (LOW_EXCITATION, OUTSIDE_TRAINING, UNLIKE_CLASSES)
-    ]
-    return float(np.mean(ratios)) if ratios else None
+QUIET_TOLERANCE = 1e-3
+"""Precision of ``quiet_allowance``, nats."""
+
+
+def quiet_allowance(decisions: list[Decision]) -> float | None:
+    """The smallest ``unit_allowance`` (nats per window length, to ``QUIET_TOLERANCE``) with
+    which these decisions' sequential test never reaches its threshold; None without a window
+    that gives evidence.
+
+    The test publishes a fault when some run of informative windows adds up to
+    ``sum(g * (r - k)) >= h`` (``Decision.evidence_weight`` g, ``Decision.fault_ratio`` r,
+    allowance k, ``fault_threshold`` h), so the answer is the largest ``(sum(g r) - h) /
+    sum(g)`` over all runs. It is found by bisection: a larger k only lowers the statistic.
+    It does not depend on the allowance the decisions were made with. On healthy recordings
+    of units the classifier was not trained on, the allowance must exceed the largest.
+    """
+    steps = [(d.evidence_weight, d.fault_ratio) for d in decisions if d.evidence_weight > 0.0]
+    if not steps:
+        return None
+    threshold = next(d.fault_threshold for d in decisions if d.evidence_weight > 0.0)
+
+    def publishes(k: float) -> bool:
+        s = 0.0
+        for g, r in steps:
+            s = max(s + g * (r - k), 0.0)
+            if s >= threshold:
+                return True
+        return False
+
+    lo = max(r - threshold / g for g, r in steps) - 1.0  # one window alone passes it
+    hi = max(r for _, r in steps)  # no window adds evidence
+    while hi - lo > QUIET_TOLERANCE:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if publishes(mid) else (lo, mid)
+    return hi
 
 
 def summarize_decisions(decisions: list[Decision]) -> dict:
     """The ``diagnose`` JSON (docs/contracts.md) from decisions: ``overall``
     (``overall_label``), ``events`` (``label_events``), ``first_fault`` (``first_fault``),
-    ``mean_fault_ratio`` (``mean_fault_ratio``) and ``windows``."""
+    ``quiet_allowance`` (``quiet_allowance``) and ``windows``."""
     windows = [
         {
             "t_start": d.t_start_s,
@@ -176,7 +192,7 @@ def summarize_decisions(decisions: list[Decision]) -> dict:
         "first_fault": first_fault(decisions),
         "unknown_reasons": reasons,
         "fault_threshold": decisions[0].fault_threshold if decisions else None,
-        "mean_fault_ratio": mean_fault_ratio(decisions),
+        "quiet_allowance": quiet_allowance(decisions),
         "windows": windows,
     }
 
