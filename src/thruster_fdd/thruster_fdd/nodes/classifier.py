@@ -88,8 +88,9 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     (
         "unit_allowance",
         2.0,
-        "evidence allowance against healthy thrusters: the mean fault log-likelihood ratio a "
-        "healthy unit may show, nats (per window length)",
+        "evidence allowance against healthy thrusters: set it above the largest quiet allowance "
+        "(thruster-fdd diagnose) of healthy units the classifier was not trained on, nats (per "
+        "window length)",
     ),
     ("stale_after_s", 3.0, "no residual for this long -> STALE and UNKNOWN, s"),
     ("diagnostics_period_s", 1.0, "period of the /diagnostics status, s"),

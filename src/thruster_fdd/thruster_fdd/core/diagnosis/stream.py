@@ -41,8 +41,8 @@ UNIT_ALLOWANCE = 2.0
 window's log-likelihood ratio above it counts as evidence. The windows of one thruster share its
 manufacturing offsets, so they are not independent given its condition: a healthy unit whose
 gains sit where a fault puts them has a positive mean ratio at every window, and without an
-allowance its evidence would grow without bound. The allowance is the mean ratio a healthy unit
-may show (docs/diagnosis.md)."""
+allowance its evidence would grow without bound. A recording stays free of faults when the
+allowance exceeds its quiet allowance (``offline.quiet_allowance`` ashore, docs/diagnosis.md)."""
 
 LLR_CLIP = math.log((1.0 - P_MIN) / P_MIN)
 """Largest log-likelihood ratio one window can contribute (the probabilities' own bound)."""
