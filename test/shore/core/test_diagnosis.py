@@ -34,7 +34,9 @@ from thruster_fdd_shore.core.diagnosis.offline import (
 )
 from thruster_fdd_shore.core.diagnosis.table3 import Table3Config, run_table3
 from thruster_fdd_shore.core.diagnosis.training import (
+    BAND_WIDTH,
     ClassifierConfig,
+    evidence_floor,
     fit_temperature,
     train_classifier,
 )
@@ -173,6 +175,11 @@ def test_load_errors_name_the_file_and_the_problem(models: Path, tmp_path: Path)
     card_path.write_text(json.dumps({k: v for k, v in card.items() if k != "temperature"}))
     with pytest.raises(ValueError, match=r"missing field.*temperature"):
         ClassifierModel.load(d)
+    for floor in (-0.1, 1.5, "0.2", True):
+        coverage = {**card["coverage"], "evidence_floor": {"min_command_abs": floor}}
+        card_path.write_text(json.dumps({**card, "coverage": coverage}))
+        with pytest.raises(ValueError, match=r"malformed coverage\.evidence_floor"):
+            ClassifierModel.load(d)
     card_path.write_text(json.dumps(card))
     for name in ("model.pt2", "weights.npz"):
         saved = (d / name).read_bytes()
@@ -299,10 +306,52 @@ def test_card_carries_the_training_region_and_its_calibration(models: Path) -> N
     assert 11.0 < lo < hi < 16.0
     assert card["calibration"]["windows"] > 0
     assert 0.0 <= card["calibration"]["ece"] <= 1.0
+    floor = card["coverage"]["evidence_floor"]
+    assert floor["min_accuracy"] == ClassifierConfig().min_band_accuracy
+    assert sum(n for _, n, _ in floor["bands"]) > 0
+    reached = [lower for lower, _, accuracy in floor["bands"] if accuracy >= floor["min_accuracy"]]
+    assert floor["min_command_abs"] == (reached[0] if reached else None)
     classifier = ClassifierModel.load(models / "classifier")
+    assert classifier.min_command_abs == (reached[0] if reached else math.inf)
     trained = classifier.coverage.points[len(classifier.coverage.points) // 2]
     assert classifier.coverage.covers(trained * classifier.coverage.resolution)[0]
     assert not classifier.coverage.covers(np.array([0.5, 0.5, 0.1, 24.0]))[0]
+
+
+@given(
+    bands=st.lists(
+        st.tuples(st.integers(0, 19), st.integers(1, 400), st.floats(0.0, 1.0)),
+        min_size=1,
+        max_size=8,
+        unique_by=lambda b: b[0],
+    ),
+    need=st.floats(0.5, 1.0),
+)
+@settings(max_examples=60, deadline=None)
+def test_the_evidence_floor_is_the_lowest_band_told_apart_well_enough(
+    bands: list[tuple[int, int, float]], need: float
+) -> None:
+    rng = np.random.default_rng(0)
+    command, fault_p, is_fault, expected = [], [], [], {}
+    for band, n, share in bands:
+        right = round(share * n)
+        truth = rng.random(n) < 0.5
+        says = truth.copy()
+        says[right:] = ~says[right:]
+        command += list((band + rng.uniform(0.01, 0.99, n)) * BAND_WIDTH)
+        fault_p += list(np.where(says, 0.9, 0.1))
+        is_fault += list(truth)
+        expected[band] = round((right + 1) / (n + 2), 4)
+    entry = evidence_floor(np.array(command), np.array(fault_p), np.array(is_fault), need)
+    assert [b[0] for b in entry["bands"]] == [round(b * BAND_WIDTH, 6) for b in sorted(expected)]
+    passing = [b for b in sorted(expected) if expected[b] >= need]
+    floor = entry["min_command_abs"]
+    assert floor == (round(passing[0] * BAND_WIDTH, 6) if passing else None)
+    stricter = evidence_floor(np.array(command), np.array(fault_p), np.array(is_fault), 1.0)
+    assert stricter["min_command_abs"] is None  # (right + 1) / (n + 2) < 1: a band never proves
+    # everything; and a band of ten windows all right (11 / 12) is not 95 % evidence
+    few = evidence_floor(np.full(10, 0.32), np.full(10, 0.9), np.ones(10, bool), 0.95)
+    assert few["min_command_abs"] is None
 
 
 def test_healthy_and_fouled_are_told_apart_on_an_unseen_unit(

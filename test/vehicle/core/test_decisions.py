@@ -13,7 +13,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from thruster_fdd.core.diagnosis.coverage import OPERATING_POINT, RESOLUTION, Coverage
@@ -46,8 +46,11 @@ class FixedProbabilities:
     probability_threshold = 0.5
     distance_threshold = 10.0
 
-    def __init__(self, rows: Iterator[np.ndarray], covered_points: np.ndarray) -> None:
+    def __init__(
+        self, rows: Iterator[np.ndarray], covered_points: np.ndarray, min_command_abs: float = 0.0
+    ) -> None:
         self._rows = rows
+        self.min_command_abs = min_command_abs
         self.coverage = Coverage(
             points=np.repeat(covered_points, 5, axis=0) / RES, resolution=RES, threshold=1.0
         )
@@ -65,8 +68,14 @@ def _probs(fault: str | None, strength: float) -> np.ndarray:
     return p
 
 
-def _run(rows: list[np.ndarray], samples: list[tuple], covered: np.ndarray, **kw: float) -> list:
-    model = FixedProbabilities(iter(rows), covered)
+def _run(
+    rows: list[np.ndarray],
+    samples: list[tuple],
+    covered: np.ndarray,
+    min_command_abs: float = 0.0,
+    **kw: float,
+) -> list:
+    model = FixedProbabilities(iter(rows), covered, min_command_abs)
     stream = DiagnosisStream(model, hop_s=0.1, **kw)  # type: ignore[arg-type]
     out = [stream.push(0.1 * k, *row, True) for k, row in enumerate(samples)]
     return [d for d in out if d is not None]
@@ -176,6 +185,25 @@ def test_uncovered_and_idle_windows_are_unknown_and_change_no_evidence() -> None
     assert len({d.fault_evidence for d in quiet}) == 1  # frozen while the rotor stands
     assert all(d.evidence_weight == 0.0 for d in quiet)
     assert all(d.evidence_weight == pytest.approx(0.1 / 2.0) for d in idle[:n])
+
+
+@given(floor=st.floats(0.0, 1.0), command=st.floats(0.05, 1.0))
+@settings(max_examples=30, deadline=None)
+def test_windows_below_the_evidence_floor_give_no_evidence(floor: float, command: float) -> None:
+    assume(abs(command - floor) > 1e-9)  # a window's mean of equal commands may be an ulp off
+    n = 60
+    rows = [_probs("broken_blade_2", 0.99)] * (n + 1)
+    point = np.array([[command, command, 0.0, 15.0]])
+    driven = (command, 15.0, 2600.0, 3.0, 0.0, 0.0)
+    decisions = _run(rows, [driven] * (n + 19), point, floor)
+    if command < floor:
+        assert all(d.label == UNKNOWN and d.reason == LOW_EXCITATION for d in decisions)
+        assert all(d.fault_evidence == 0.0 and d.evidence_weight == 0.0 for d in decisions)
+    else:
+        assert all(d.evidence_weight > 0.0 for d in decisions)
+        assert decisions[-1].fault_evidence > 0.0
+    never = _run(rows, [driven] * (n + 19), point, math.inf)
+    assert all(d.reason == LOW_EXCITATION and d.fault_evidence == 0.0 for d in never)
 
 
 def test_published_probabilities_are_bounded() -> None:

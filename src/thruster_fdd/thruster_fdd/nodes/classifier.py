@@ -38,7 +38,12 @@ from thruster_fdd_msgs.msg import Diagnosis, Residual
 
 from thruster_fdd.core.artifact import default_models_dir
 from thruster_fdd.core.diagnosis.model import ClassifierModel
-from thruster_fdd.core.diagnosis.stream import Decision, DiagnosisStream
+from thruster_fdd.core.diagnosis.stream import (
+    FALSE_ALARMS_PER_HOUR,
+    UNIT_ALLOWANCE,
+    Decision,
+    DiagnosisStream,
+)
 from thruster_fdd.core.labels import UNKNOWN
 from thruster_fdd.nodes.common import (
     NO_PUB_EVENTS,
@@ -81,13 +86,13 @@ PARAMETERS: tuple[tuple[str, object, str], ...] = (
     ("unknown_threshold", -1.0, "UNKNOWN threshold (negative: the model card's)"),
     (
         "false_alarms_per_hour",
-        1e-3,
+        FALSE_ALARMS_PER_HOUR,
         "false-alarm rate the fault evidence threshold is set for, per hour of covered operation "
         "(lower: fewer false alarms, later detection)",
     ),
     (
         "unit_allowance",
-        2.0,
+        UNIT_ALLOWANCE,
         "evidence allowance against healthy thrusters: set it above the largest quiet allowance "
         "(thruster-fdd diagnose) of healthy units the classifier was not trained on, nats (per "
         "window length)",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -122,6 +123,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     c.add_argument("--seed", type=non_negative_int, default=0, help="seed of initialisation")
     c.add_argument("--window", type=positive_float, default=20.0, help="window length, s")
     c.add_argument("--epochs", type=int, default=400, help="training epochs (full batch)")
+    c.add_argument(
+        "--min-band-accuracy",
+        type=float,
+        default=0.95,
+        metavar="P",
+        help="accuracy (0..1) with which held-out units must be told healthy from faulty in a "
+        "0.05 band of mean |command| for windows there to give evidence",
+    )
 
 
 MIN_TRACE_S = 10.0
@@ -210,8 +219,12 @@ def run(args: argparse.Namespace) -> int:
             f"--window must be within {MIN_WINDOW_SAMPLES * sample_time_s:g}..{MAX_WINDOW_S:g} s "
             f"({MIN_WINDOW_SAMPLES} samples of the nominal model at least), got {args.window:g}"
         )
+    if not 0.5 <= args.min_band_accuracy <= 1.0:
+        raise BadInputError(f"--min-band-accuracy must be in 0.5..1, got {args.min_band_accuracy}")
     traces = read_traces(args.data)
-    config = ClassifierConfig(window_s=args.window, epochs=args.epochs)
+    config = ClassifierConfig(
+        window_s=args.window, epochs=args.epochs, min_band_accuracy=args.min_band_accuracy
+    )
     card = train_classifier(
         traces,
         args.nominal,
@@ -233,4 +246,20 @@ def run(args: argparse.Namespace) -> int:
     print(f"training region (1st-99th percentile; threshold {card.coverage['threshold']:.2f}):")
     for name, (lo, hi) in card.coverage["summary"].items():
         print(f"  {name:<17} {lo:8.3f} .. {hi:8.3f}")
+    floor = card.coverage["evidence_floor"]
+    need = floor["min_accuracy"]
+    print(f"held-out accuracy healthy/faulty by mean |command| (evidence needs {need:.2f}):")
+    for lower, windows, accuracy in floor["bands"]:
+        print(
+            f"  {lower:.2f}-{lower + floor['band_width']:.2f} {windows:7d} windows  {accuracy:.3f}"
+        )
+    if floor["min_command_abs"] is None:
+        print(
+            f"warning: no band reaches {need:.2f}: every window will be answered unknown "
+            "(low_excitation); train on more units and operating points or lower "
+            "--min-band-accuracy",
+            file=sys.stderr,
+        )
+    else:
+        print(f"windows give evidence from mean |command| {floor['min_command_abs']:.2f}")
     return EXIT_OK

@@ -77,9 +77,11 @@ class ClassifierCard(ModelCard):
         is unknown below the first or beyond the second; class mean/std are lists (C, F) in
         standardised units.
     coverage : dict
-        ``{"coordinates", "resolution", "threshold", "quantile", "summary"}``: the operating
-        region of the training windows (``diagnosis.coverage``; the points themselves are the
-        ``coverage_points`` array of the weights file).
+        ``{"coordinates", "resolution", "threshold", "quantile", "summary", "evidence_floor"}``:
+        the operating region of the training windows (``diagnosis.coverage``; the points
+        themselves are the ``coverage_points`` array of the weights file) and the mean
+        |command| from which it gives evidence (``evidence_floor.min_command_abs``; None: from
+        none; absent in cards made before it: from 0).
     calibration : dict
         How the probabilities were calibrated: held-out ``units``, ``windows``, the expected
         calibration error ``ece`` before and after temperature scaling.
@@ -159,7 +161,34 @@ def read_classifier_card(model_dir: str | Path) -> ClassifierCard:
         raise ModelMismatchError(f"{path}: coverage resolution must be {len(OPERATING_POINT)} > 0")
     if not (np.all(np.isfinite(resolution)) and 0 < threshold < math.inf):
         raise ModelMismatchError(f"{path}: coverage threshold must be finite and > 0")
+    try:
+        min_command_abs(card)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelMismatchError(
+            f"{path}: malformed coverage.evidence_floor ({type(exc).__name__}: {exc})"
+        ) from exc
     return card
+
+
+def min_command_abs(card: ClassifierCard) -> float:
+    """Mean |command| (0..1) below which a window gives no evidence: the card's
+    ``coverage.evidence_floor.min_command_abs``; ``inf`` when it is None (no band of the
+    held-out units was told apart reliably), 0 for a card without it.
+
+    Raises
+    ------
+    ValueError
+        If the value is not None and not a number within 0..1.
+    """
+    floor = card.coverage.get("evidence_floor")
+    if floor is None:
+        return 0.0
+    value = floor["min_command_abs"]
+    if value is None:
+        return math.inf
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+        raise ValueError(f"min_command_abs must be a number in 0..1 or null, got {value!r}")
+    return float(value)
 
 
 class ClassifierModel:
@@ -184,6 +213,8 @@ class ClassifierModel:
         Distance to the nearest class beyond which a window is unknown.
     coverage : Coverage
         The operating region of the training windows.
+    min_command_abs : float
+        Mean |command| below which a window gives no evidence (``min_command_abs``).
     """
 
     def __init__(
@@ -203,6 +234,7 @@ class ClassifierModel:
         self.distance_threshold = float(card.unknown["distance_threshold"])
         self._layers = layers
         self.coverage = coverage
+        self.min_command_abs = min_command_abs(card)
         self._fill = np.array([card.feature_fill[f] for f in FEATURE_NAMES])
         self._center = np.array([card.scaling[f]["center"] for f in FEATURE_NAMES])
         self._scale = np.array([card.scaling[f]["scale"] for f in FEATURE_NAMES])

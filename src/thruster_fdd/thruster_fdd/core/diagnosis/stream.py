@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thruster_fdd.core.diagnosis.coverage import operating_point
+from thruster_fdd.core.diagnosis.coverage import OPERATING_POINT, operating_point
 from thruster_fdd.core.diagnosis.features import FEATURE_NAMES, WINDOW_SIGNALS, window_features
 from thruster_fdd.core.diagnosis.model import P_MIN, ClassifierModel
 from thruster_fdd.core.labels import FAULT_CLASSES, UNKNOWN
@@ -36,7 +36,7 @@ while the thruster turns (tuned on validation units 400-405, docs/diagnosis.md).
 FALSE_ALARMS_PER_HOUR = 1e-3
 """Default false-alarm rate the fault threshold is set for, per hour of covered operation."""
 
-UNIT_ALLOWANCE = 2.0
+UNIT_ALLOWANCE = 1.5
 """Allowance of the test against healthy thrusters, nats per window length: only the part of a
 window's log-likelihood ratio above it counts as evidence. The windows of one thruster share its
 manufacturing offsets, so they are not independent given its condition: a healthy unit whose
@@ -61,7 +61,9 @@ REASONS: tuple[str, ...] = (
 )
 """Why a decision is ``"unknown"`` (``Decision.reason``; ``Diagnosis.reason``):
 ``outside_training``: the window's operating point is outside the classifier's training region;
-``low_excitation``: the rotor hardly turned; ``unlike_classes``: the features are unlike every
+``low_excitation``: the rotor hardly turned, or its mean |command| is below the classifier's
+evidence floor (``ClassifierModel.min_command_abs``: where held-out units were not told healthy
+from faulty reliably); ``unlike_classes``: the features are unlike every
 class; ``evidence_pending``: the evidence leans to a fault that the sequential test has not yet
 confirmed; ``warming_up``: no informative window yet."""
 
@@ -287,9 +289,11 @@ class DiagnosisStream:
         Allowance of the sequential test, nats per window length (``UNIT_ALLOWANCE``).
 
     Decision layer. A window is *informative* when the rotor turned (excitation weight
-    ``w > 0``, from its share of turning samples), its operating point is covered by the
-    training region (``ClassifierModel.coverage``) and its features are like some class; any
-    other window is published as ``"unknown"`` with the reason and changes no evidence.
+    ``w > 0``, from its share of turning samples) at a mean |command| of at least the
+    classifier's evidence floor (``ClassifierModel.min_command_abs``), its operating point is
+    covered by the training region (``ClassifierModel.coverage``) and its features are like
+    some class; any other window is published as ``"unknown"`` with the reason and changes no
+    evidence.
     Informative windows feed two kinds of evidence:
 
     - faults, by a sequential test: the log-likelihood ratio ``llr`` of the fault classes
@@ -350,6 +354,7 @@ class DiagnosisStream:
         self._gamma = min(self._hop_time_s / model.window_s, 1.0)
         self._windows = WindowFeaturizer(model.window_samples, hop_samples, model.sample_time_s)
         self._active_index = FEATURE_NAMES.index("active_fraction")
+        self._load_index = OPERATING_POINT.index("command_abs_mean")
         names = model.class_names
         self._faults = np.array([c in FAULT_CLASSES for c in names])
         if not self._faults.any() or self._faults.all():
@@ -422,6 +427,8 @@ class DiagnosisStream:
         lo, hi = self.excitation_range
         active = float(features[self._active_index])
         w = min(max((active - lo) / (hi - lo), 0.0), 1.0) if math.isfinite(active) else 0.0
+        if point[self._load_index] < self.model.min_command_abs:
+            w = 0.0
         llr = fault_log_ratio(float(p[self._faults].sum()), *self._class_counts)
         weight = 0.0
         if w <= 0.0:

@@ -39,9 +39,9 @@ from thruster_fdd.core.diagnosis.model import (
     mlp_layers,
     softmax,
 )
-from thruster_fdd.core.diagnosis.stream import WindowFeaturizer
+from thruster_fdd.core.diagnosis.stream import EXCITATION_RANGE, WindowFeaturizer
 from thruster_fdd.core.errors import BadInputError, ModelMismatchError
-from thruster_fdd.core.labels import CLASS_NAMES
+from thruster_fdd.core.labels import CLASS_NAMES, FAULT_CLASSES
 from thruster_fdd.core.nominal.residuals import ResidualStream
 from thruster_fdd.core.nominal.runtime import NominalModel
 from thruster_fdd.core.traces.data import Trace
@@ -131,6 +131,9 @@ class ClassifierConfig:
     coverage_quantile : float
         Quantile of the held-out windows' distance to the training region that sets the
         coverage threshold (``diagnosis.coverage``).
+    min_band_accuracy : float
+        Accuracy (0..1) with which the held-out windows of a band of mean |command| must be
+        told healthy from faulty for the band to give evidence (``evidence_floor``).
     """
 
     window_s: float = DEFAULT_WINDOW_S
@@ -146,6 +149,7 @@ class ClassifierConfig:
     holdout_fraction: float = 0.25
     holdout_units: int = 3
     coverage_quantile: float = 0.99
+    min_band_accuracy: float = 0.95
 
 
 @dataclass(frozen=True)
@@ -329,6 +333,64 @@ def training_coverage(
     return coverage, entry
 
 
+BAND_WIDTH = RESOLUTION["command_abs_mean"] / 2.0
+"""Width of the bands of mean |command| whose held-out accuracy sets the evidence floor."""
+
+
+def evidence_floor(
+    command_abs: np.ndarray, fault_p: np.ndarray, is_fault: np.ndarray, min_accuracy: float
+) -> dict[str, Any]:
+    """The mean |command| from which held-out windows are told healthy from faulty reliably.
+
+    A fault shows as a change of the load the propeller puts on the motor, and the load grows
+    with the square of the speed: at small commands it is a few per cent of full load, so a
+    unit's own offsets (gains, zero offsets, deadband) outweigh what a fault changes, and units
+    the network was not fitted to are told apart no better than by chance. Where that happens
+    depends on the thruster type and on what the training data hold, so it is measured on the
+    held-out units: their windows are put in bands of ``BAND_WIDTH``, and a band's accuracy is
+    the share of its windows whose fault probability (fault classes together) is on the right
+    side of 1/2, counted as ``(right + 1) / (windows + 2)`` so that a band of a few windows
+    proves nothing. The floor is the lower edge of the lowest band that reaches
+    ``min_accuracy``; windows below it give no evidence (``DiagnosisStream``).
+
+    Parameters
+    ----------
+    command_abs : np.ndarray, shape (m,)
+        Mean |command| of each held-out window that the rotor turned in (-1..1 scale).
+    fault_p : np.ndarray, shape (m,)
+        Its calibrated probability of the fault classes together.
+    is_fault : np.ndarray, shape (m,)
+        Whether its true class is a fault.
+    min_accuracy : float
+        Accuracy a band must reach, 0..1.
+
+    Returns
+    -------
+    dict
+        The card entry ``{"min_command_abs", "min_accuracy", "band_width", "bands"}``:
+        ``min_command_abs`` is None when no band reaches the accuracy (no window gives
+        evidence); ``bands`` lists ``[lower edge, windows, accuracy]`` of every band with a
+        window.
+    """
+    band = np.floor(np.clip(command_abs, 0.0, 1.0) / BAND_WIDTH + 1e-9).astype(int)
+    right = (fault_p > 0.5) == is_fault
+    bands = []
+    floor = None
+    for b in np.unique(band):
+        mine = band == b
+        accuracy = round((float(right[mine].sum()) + 1.0) / (float(mine.sum()) + 2.0), 4)
+        lower = round(float(b) * BAND_WIDTH, 6)
+        bands.append([lower, int(mine.sum()), accuracy])
+        if floor is None and accuracy >= min_accuracy:
+            floor = lower
+    return {
+        "min_command_abs": floor,
+        "min_accuracy": min_accuracy,
+        "band_width": BAND_WIDTH,
+        "bands": bands,
+    }
+
+
 def fit_mlp(
     x: np.ndarray, y: np.ndarray, center: np.ndarray, scale: np.ndarray, config: ClassifierConfig,
     seed: int, *, progress: bool = False,
@@ -435,6 +497,14 @@ def train_classifier(
     temperature = fit_temperature(logit_val, val.y)
     coverage, coverage_entry = training_coverage(train, val, config.coverage_quantile)
     p_val = softmax(logit_val / temperature)
+    faults = np.array([c in FAULT_CLASSES for c in CLASS_NAMES])
+    turning = x_val[:, FEATURE_NAMES.index("active_fraction")] >= EXCITATION_RANGE[0]
+    coverage_entry["evidence_floor"] = evidence_floor(
+        val.point[turning, OPERATING_POINT.index("command_abs_mean")],
+        p_val[turning][:, faults].sum(axis=1),
+        faults[val.y[turning]],
+        config.min_band_accuracy,
+    )
     calibration = {
         "units": sorted({traces[k].thruster_id for k in np.unique(val.trace)} - {""}),
         "windows": len(val.y),
